@@ -1,0 +1,208 @@
+"""Shared sample handling for every orientation filter of the core.
+
+A filter sees one IMU sample at a time through :meth:`OrientationFilter.update`. The rules for bad input live here,
+once, so that every filter (the CCF and the baselines) answers the same samples:
+
+* non-finite gyroscope -> the sample is skipped: no state change, no output;
+* stamp not later than the last accepted one (or non-finite) -> skipped;
+* non-finite or zero accelerometer -> gyro-only propagation;
+* non-finite or zero magnetometer (or none) -> no heading correction;
+* gap longer than ``max_dt_s`` -> re-initialise from accelerometer/magnetometer instead of integrating across it;
+* before the first sample with a valid accelerometer there is no orientation: those samples are skipped.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from collections.abc import Sequence
+from dataclasses import dataclass
+from enum import IntEnum
+
+from .quaternion import WORLD_FRAMES
+
+
+class Status(IntEnum):
+    """Outcome of one :meth:`OrientationFilter.update`. Values below ``SKIPPED_BAD_GYRO`` produced an output."""
+
+    UPDATED = 0
+    INITIALIZED = 1
+    REINITIALIZED_AFTER_GAP = 2
+    SKIPPED_BAD_GYRO = 3
+    SKIPPED_STAMP = 4
+    SKIPPED_NO_ACC_YET = 5
+
+
+#: ``status < ANSWERED_BELOW`` means the sample has an orientation output.
+ANSWERED_BELOW = int(Status.SKIPPED_BAD_GYRO)
+
+
+def check_positive(name: str, value: float) -> None:
+    """Raise ``ValueError`` naming ``name`` unless ``value`` is a finite number > 0."""
+    if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value) or value <= 0:
+        raise ValueError(f'{name} must be a finite number > 0, got {value!r}')
+
+
+def check_range(name: str, value: float, lo: float, hi: float) -> None:
+    """Raise ``ValueError`` unless ``lo <= value <= hi``."""
+    if not isinstance(value, (int, float)) or isinstance(value, bool) or not (lo <= value <= hi):
+        raise ValueError(f'{name} must be in [{lo}, {hi}], got {value!r}')
+
+
+@dataclass(frozen=True)
+class CommonParams:
+    """Parameters every filter shares.
+
+    Attributes:
+        max_dt_s: longest gap between two samples that is integrated, s; a longer gap re-initialises the
+            orientation from accelerometer/magnetometer. Default 0.5 s.
+        use_mag: use the magnetometer for heading (9-D); ``False`` gives a 6-D filter whose heading drifts.
+        world_frame: world frame of the output orientation: ``enu`` (REP-103 default), ``ned`` or ``nwu``.
+    """
+
+    max_dt_s: float = 0.5
+    use_mag: bool = True
+    world_frame: str = 'enu'
+
+    def __post_init__(self) -> None:
+        check_positive('max_dt_s', self.max_dt_s)
+        if not isinstance(self.use_mag, bool):
+            raise ValueError(f'use_mag must be a bool, got {self.use_mag!r}')
+        if self.world_frame not in WORLD_FRAMES:
+            raise ValueError(f'world_frame must be one of {sorted(WORLD_FRAMES)}, got {self.world_frame!r}')
+
+
+class OrientationFilter(ABC):
+    """One IMU sample in, one orientation out. Subclasses implement :meth:`_init` and :meth:`_step`.
+
+    Internally every filter works in ENU; :attr:`quaternion` converts to ``params.world_frame``.
+    """
+
+    #: registry name, e.g. ``ccf``
+    name = ''
+    params: CommonParams
+
+    def __init__(self, params: CommonParams) -> None:
+        self.params = params
+        self._frame = WORLD_FRAMES[params.world_frame]
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget everything learnt: equivalent to a fresh instance with the same parameters."""
+        self._t_last = -math.inf
+        self.initialized = False
+        # Internal body->ENU orientation [w, x, y, z].
+        self._q: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
+        self.counts = [0] * len(Status)
+        self.n_no_acc = 0
+        self.n_no_mag = 0
+        self._reset_state()
+
+    @abstractmethod
+    def _reset_state(self) -> None:
+        """Reset filter-specific state."""
+
+    @abstractmethod
+    def _init(self, ax: float, ay: float, az: float, mx: float, my: float, mz: float, mag_ok: bool) -> None:
+        """Set the orientation from a valid accelerometer (and magnetometer if ``mag_ok``)."""
+
+    @abstractmethod
+    def _step(
+        self,
+        dt: float,
+        gx: float,
+        gy: float,
+        gz: float,
+        ax: float,
+        ay: float,
+        az: float,
+        acc_n2: float,
+        mx: float,
+        my: float,
+        mz: float,
+        mag_n2: float,
+    ) -> None:
+        """Advance by ``dt`` s. ``acc_n2``/``mag_n2`` are the squared norms, 0.0 when that sensor is unusable."""
+
+    def update(
+        self,
+        t_s: float,
+        gyr: Sequence[float],
+        acc: Sequence[float],
+        mag: Sequence[float] | None = None,
+    ) -> int:
+        """Process one sample.
+
+        Args:
+            t_s: sample time, s (header stamp).
+            gyr: angular rate, rad/s, body frame, 3 values.
+            acc: specific force, m/s², body frame (+g up at rest, REP-145), 3 values.
+            mag: magnetic field, any unit (tesla in ROS), body frame, or ``None``.
+
+        Returns:
+            a :class:`Status` value (as ``int``); below :data:`ANSWERED_BELOW` the orientation is valid.
+        """
+        gx, gy, gz = gyr
+        s = gx + gy + gz
+        # x - x is 0.0 only for finite x: one test catches NaN and Inf in any component.
+        if s - s != 0.0:
+            self.counts[3] += 1
+            return 3
+        dt = t_s - self._t_last
+        if not dt > 0.0 or t_s - t_s != 0.0:
+            self.counts[4] += 1
+            return 4
+        self._t_last = t_s
+        ax, ay, az = acc
+        acc_n2 = ax * ax + ay * ay + az * az
+        if not (acc_n2 > 1e-12 and acc_n2 - acc_n2 == 0.0):
+            acc_n2 = 0.0
+            self.n_no_acc += 1
+        if mag is not None and self.params.use_mag:
+            mx, my, mz = mag
+            mag_n2 = mx * mx + my * my + mz * mz
+            if not (mag_n2 > 1e-30 and mag_n2 - mag_n2 == 0.0):
+                mag_n2 = 0.0
+                self.n_no_mag += 1
+        else:
+            mx = my = mz = mag_n2 = 0.0
+        if self.initialized and dt <= self.params.max_dt_s:
+            self._step(dt, gx, gy, gz, ax, ay, az, acc_n2, mx, my, mz, mag_n2)
+            self.counts[0] += 1
+            return 0
+        if acc_n2 == 0.0:
+            if self.initialized:
+                # After a gap without a usable accelerometer: hold, do not integrate across the gap.
+                self.counts[0] += 1
+                return 0
+            self.counts[5] += 1
+            return 5
+        status = 2 if self.initialized else 1
+        self._init(ax, ay, az, mx, my, mz, mag_n2 != 0.0)
+        self.initialized = True
+        self.counts[status] += 1
+        return status
+
+    @property
+    def quaternion(self) -> tuple[float, float, float, float]:
+        """Body->world orientation ``(w, x, y, z)`` in ``params.world_frame``."""
+        pw, px, py, pz = self._frame
+        qw, qx, qy, qz = self._q
+        if px == 0.0 and py == 0.0 and pz == 0.0:
+            return self._q
+        return (
+            pw * qw - px * qx - py * qy - pz * qz,
+            pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx,
+            pw * qz + px * qy - py * qx + pz * qw,
+        )
+
+    @property
+    @abstractmethod
+    def gyro_bias(self) -> tuple[float, float, float]:
+        """Gyroscope bias estimate, rad/s, body frame (zero for filters that do not estimate it)."""
+
+    @property
+    @abstractmethod
+    def orientation_variance(self) -> tuple[float, float, float]:
+        """Variance of roll, pitch and yaw errors, rad², for ``orientation_covariance``'s diagonal."""

@@ -1,0 +1,60 @@
+"""Pair each IMU sample with the latest magnetometer sample, identically in the node and in replay."""
+
+from __future__ import annotations
+
+import math
+
+
+class MagPairer:
+    """Keeps the latest magnetometer sample (by stamp) and hands it to IMU samples that are not older than it.
+
+    A magnetometer sample is used for an IMU sample at ``t`` if its stamp is ``<= t + tolerance_s`` and
+    ``>= t - timeout_s``. Messages are processed in arrival order (bag order in replay, callback order in the node),
+    which makes both paths pair identically.
+
+    Args:
+        timeout_s: oldest magnetometer sample still used, s before the IMU stamp. Default 0.5 s.
+        tolerance_s: a magnetometer stamp up to this much after the IMU stamp still counts (clock jitter), s.
+    """
+
+    def __init__(self, timeout_s: float = 0.5, tolerance_s: float = 1e-4) -> None:
+        if not (math.isfinite(timeout_s) and timeout_s > 0):
+            raise ValueError(f'mag timeout_s must be a finite number > 0, got {timeout_s!r}')
+        if not (math.isfinite(tolerance_s) and tolerance_s >= 0):
+            raise ValueError(f'mag tolerance_s must be a finite number >= 0, got {tolerance_s!r}')
+        self.timeout_s = timeout_s
+        self.tolerance_s = tolerance_s
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget all magnetometer samples."""
+        self._t = -math.inf
+        self._m: tuple[float, float, float] | None = None
+        self._pending: list[tuple[float, tuple[float, float, float]]] = []
+
+    def add(self, t_s: float, mag: tuple[float, float, float]) -> None:
+        """Record a magnetometer sample at ``t_s`` (s)."""
+        # A sample that arrives ahead of the IMU stream waits until an IMU stamp reaches it.
+        self._pending.append((t_s, mag))
+
+    def get(self, t_s: float) -> tuple[float, float, float] | None:
+        """The magnetometer sample for an IMU sample at ``t_s``, or None if there is none recent enough."""
+        pending = self._pending
+        if pending:
+            limit = t_s + self.tolerance_s
+            keep = []
+            for tm, m in pending:
+                if tm <= limit:
+                    if tm >= self._t:
+                        self._t, self._m = tm, m
+                else:
+                    keep.append((tm, m))
+            self._pending = keep[-64:]
+        if self._m is None or t_s - self._t > self.timeout_s:
+            return None
+        return self._m
+
+    @property
+    def age_s(self) -> float:
+        """Stamp of the magnetometer sample in use, s (``-inf`` if none)."""
+        return self._t

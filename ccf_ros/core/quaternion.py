@@ -1,0 +1,199 @@
+"""Quaternion, Euler-angle and frame helpers (numpy, vectorised).
+
+Conventions used throughout the core:
+
+* quaternions are ``[w, x, y, z]``, unit norm, and rotate body-frame vectors into the world frame
+  (``v_world = q ⊗ v_body ⊗ q*``);
+* Euler angles are intrinsic Z-Y-X (yaw ``psi``, pitch ``theta``, roll ``phi``), in rad,
+  ``q = Rz(psi) Ry(theta) Rx(phi)``;
+* the internal world frame is ENU (REP-103); an accelerometer at rest reads ``+g`` along world up (REP-145).
+
+Every function accepts a single ``(4,)``/``(3,)`` array or a stack ``(N, 4)``/``(N, 3)``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+FloatArray = NDArray[np.float64]
+
+#: Rotation from ENU to the supported world frames, ``q_frame_from_enu`` in ``[w, x, y, z]``.
+#: NED: x=north, y=east, z=down; NWU: x=north, y=west, z=up.
+_S = math.sqrt(0.5)
+WORLD_FRAMES: dict[str, tuple[float, float, float, float]] = {
+    'enu': (1.0, 0.0, 0.0, 0.0),
+    # v_ned = (v_n, v_e, -v_u): 180 deg about the (1, 1, 0)/sqrt(2) axis.
+    'ned': (0.0, _S, _S, 0.0),
+    # v_nwu = (v_n, -v_e, v_u): -90 deg about z.
+    'nwu': (_S, 0.0, 0.0, -_S),
+}
+
+
+def quat_mul(p: ArrayLike, q: ArrayLike) -> FloatArray:
+    """Hamilton product ``p ⊗ q``; shapes ``(..., 4)``."""
+    p = np.asarray(p, dtype=float)
+    q = np.asarray(q, dtype=float)
+    pw, px, py, pz = np.moveaxis(p, -1, 0)
+    qw, qx, qy, qz = np.moveaxis(q, -1, 0)
+    return np.stack(
+        (
+            pw * qw - px * qx - py * qy - pz * qz,
+            pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx,
+            pw * qz + px * qy - py * qx + pz * qw,
+        ),
+        axis=-1,
+    )
+
+
+def quat_conj(q: ArrayLike) -> FloatArray:
+    """Conjugate (inverse of a unit quaternion); shape ``(..., 4)``."""
+    q = np.array(q, dtype=float)
+    q[..., 1:] *= -1.0
+    return q
+
+
+def quat_normalize(q: ArrayLike) -> FloatArray:
+    """Unit quaternion with non-negative ``w`` (one representative of ``±q``)."""
+    q = np.asarray(q, dtype=float)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return np.where(q[..., :1] < 0.0, -q, q)
+
+
+def quat_rotate(q: ArrayLike, v: ArrayLike) -> FloatArray:
+    """Rotate vectors ``v`` (..., 3) by unit quaternions ``q`` (..., 4): body -> world."""
+    q = np.asarray(q, dtype=float)
+    v = np.asarray(v, dtype=float)
+    u = q[..., 1:]
+    w = q[..., :1]
+    t = 2.0 * np.cross(u, v)
+    return v + w * t + np.cross(u, t)
+
+
+def quat_angle(q: ArrayLike) -> FloatArray:
+    """Rotation angle of unit quaternions in rad, in ``[0, pi]``."""
+    q = np.asarray(q, dtype=float)
+    return 2.0 * np.arctan2(np.linalg.norm(q[..., 1:], axis=-1), np.abs(q[..., 0]))
+
+
+def quat_from_rotvec(r: ArrayLike) -> FloatArray:
+    """Quaternion of rotation vectors ``r`` (..., 3), angle = norm in rad."""
+    r = np.asarray(r, dtype=float)
+    angle = np.linalg.norm(r, axis=-1, keepdims=True)
+    half = 0.5 * angle
+    # sin(a/2)/a with its limit 1/2 at a=0
+    k = np.where(angle > 1e-12, np.sin(half) / np.where(angle > 1e-12, angle, 1.0), 0.5)
+    return np.concatenate((np.cos(half), k * r), axis=-1)
+
+
+def euler_to_quat(roll: ArrayLike, pitch: ArrayLike, yaw: ArrayLike) -> FloatArray:
+    """ZYX Euler angles (rad) -> quaternions ``(..., 4)``."""
+    cr, sr = np.cos(np.multiply(roll, 0.5)), np.sin(np.multiply(roll, 0.5))
+    cp, sp = np.cos(np.multiply(pitch, 0.5)), np.sin(np.multiply(pitch, 0.5))
+    cy, sy = np.cos(np.multiply(yaw, 0.5)), np.sin(np.multiply(yaw, 0.5))
+    return np.stack(
+        (
+            cr * cp * cy + sr * sp * sy,
+            sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy,
+        ),
+        axis=-1,
+    )
+
+
+def quat_to_euler(q: ArrayLike) -> FloatArray:
+    """Quaternions ``(..., 4)`` -> ZYX Euler angles ``(..., 3)`` as ``[roll, pitch, yaw]`` in rad."""
+    q = np.asarray(q, dtype=float)
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    roll = np.arctan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+    pitch = np.arcsin(np.clip(2.0 * (w * y - z * x), -1.0, 1.0))
+    yaw = np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return np.stack((roll, pitch, yaw), axis=-1)
+
+
+def wrap_angle(a: ArrayLike) -> FloatArray:
+    """Wrap angles (rad) into ``[-pi, pi)``."""
+    return (np.asarray(a, dtype=float) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def quat_slerp(q0: ArrayLike, q1: ArrayLike, f: ArrayLike) -> FloatArray:
+    """Spherical interpolation from ``q0`` to ``q1`` at fraction ``f`` in ``[0, 1]``; shapes broadcast."""
+    q0 = np.asarray(q0, dtype=float)
+    q1 = np.asarray(q1, dtype=float)
+    f = np.asarray(f, dtype=float)[..., None]
+    dot = np.sum(q0 * q1, axis=-1, keepdims=True)
+    q1 = np.where(dot < 0.0, -q1, q1)
+    dot = np.abs(dot)
+    theta = np.arccos(np.clip(dot, -1.0, 1.0))
+    sin_t = np.sin(theta)
+    small = sin_t < 1e-9
+    safe = np.where(small, 1.0, sin_t)
+    w0 = np.where(small, 1.0 - f, np.sin((1.0 - f) * theta) / safe)
+    w1 = np.where(small, f, np.sin(f * theta) / safe)
+    return quat_normalize(w0 * q0 + w1 * q1)
+
+
+def enu_to_frame(q_enu: ArrayLike, world_frame: str) -> FloatArray:
+    """Re-express body->ENU orientations as body->``world_frame`` (``enu``, ``ned`` or ``nwu``)."""
+    try:
+        f = WORLD_FRAMES[world_frame]
+    except KeyError:
+        raise ValueError(f'world_frame must be one of {sorted(WORLD_FRAMES)}, got {world_frame!r}') from None
+    return quat_mul(f, q_enu)
+
+
+def frame_to_enu(q_frame: ArrayLike, world_frame: str) -> FloatArray:
+    """Inverse of :func:`enu_to_frame`."""
+    if world_frame not in WORLD_FRAMES:
+        raise ValueError(f'world_frame must be one of {sorted(WORLD_FRAMES)}, got {world_frame!r}')
+    return quat_mul(quat_conj(WORLD_FRAMES[world_frame]), q_frame)
+
+
+def quat_from_acc_mag(acc: ArrayLike, mag: ArrayLike | None = None) -> FloatArray:
+    """Body->ENU orientation from accelerometer (m/s², +g up at rest) and magnetometer (any unit).
+
+    Without a magnetometer (or with one parallel to gravity) the heading is set to zero.
+    Shapes ``(..., 3)`` -> ``(..., 4)``.
+    """
+    acc = np.asarray(acc, dtype=float)
+    up = acc / np.linalg.norm(acc, axis=-1, keepdims=True)
+    if mag is None:
+        ref = np.broadcast_to([1.0, 0.0, 0.0], up.shape)
+        # a body x axis that is not vertical defines "north" arbitrarily: yaw 0
+        east_guess = np.cross(np.cross(up, ref), up)
+        alt = np.cross(np.cross(up, [0.0, 1.0, 0.0]), up)
+        east_guess = np.where(np.linalg.norm(east_guess, axis=-1, keepdims=True) > 1e-6, east_guess, alt)
+        east = east_guess / np.linalg.norm(east_guess, axis=-1, keepdims=True)
+    else:
+        east = np.cross(np.asarray(mag, dtype=float), up)
+        east = east / np.linalg.norm(east, axis=-1, keepdims=True)
+    north = np.cross(up, east)
+    # Rows of R (world from body) are the world axes expressed in body coordinates.
+    r = np.stack((east, north, up), axis=-2)
+    return rotmat_to_quat(r)
+
+
+def rotmat_to_quat(r: ArrayLike) -> FloatArray:
+    """Rotation matrices ``(..., 3, 3)`` -> unit quaternions ``(..., 4)`` with ``w >= 0``."""
+    r = np.asarray(r, dtype=float)
+    m00, m01, m02 = r[..., 0, 0], r[..., 0, 1], r[..., 0, 2]
+    m10, m11, m12 = r[..., 1, 0], r[..., 1, 1], r[..., 1, 2]
+    m20, m21, m22 = r[..., 2, 0], r[..., 2, 1], r[..., 2, 2]
+    # Four candidate formulas; pick the numerically largest denominator per element.
+    cand = np.stack(
+        (
+            np.stack((1.0 + m00 + m11 + m22, m21 - m12, m02 - m20, m10 - m01), axis=-1),
+            np.stack((m21 - m12, 1.0 + m00 - m11 - m22, m01 + m10, m02 + m20), axis=-1),
+            np.stack((m02 - m20, m01 + m10, 1.0 - m00 + m11 - m22, m12 + m21), axis=-1),
+            np.stack((m10 - m01, m02 + m20, m12 + m21, 1.0 - m00 - m11 + m22), axis=-1),
+        ),
+        axis=-2,
+    )
+    diag = np.stack((m00 + m11 + m22, m00, m11, m22), axis=-1)
+    idx = np.argmax(diag, axis=-1)
+    q = np.take_along_axis(cand, idx[..., None, None], axis=-2)[..., 0, :]
+    return quat_normalize(q)
