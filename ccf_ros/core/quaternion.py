@@ -197,3 +197,13 @@ def rotmat_to_quat(r: ArrayLike) -> FloatArray:
     idx = np.argmax(diag, axis=-1)
     q = np.take_along_axis(cand, idx[..., None, None], axis=-2)[..., 0, :]
     return quat_normalize(q)
+
+
+def to_xyzw(q: tuple[float, float, float, float]) -> tuple[float, float, float, float]:
+    """Core ``(w, x, y, z)`` -> ROS message order ``(x, y, z, w)``: the one place the order flips."""
+    return (q[1], q[2], q[3], q[0])
+
+
+def from_xyzw(x: float, y: float, z: float, w: float) -> tuple[float, float, float, float]:
+    """ROS message order ``(x, y, z, w)`` -> core ``(w, x, y, z)``."""
+    return (w, x, y, z)

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from ..core.pairing import MagPairer
+from ..core.quaternion import from_xyzw
 
 
 class BagError(Exception):
@@ -128,7 +129,7 @@ def orientation_of(msg: Any, msgtype: str) -> tuple[float, float, float, float]:
         o = msg.pose.pose.orientation
     else:
         raise BagError(f'unsupported reference type {msgtype} (use Imu, PoseStamped, QuaternionStamped, Odometry)')
-    return (o.w, o.x, o.y, o.z)
+    return from_xyzw(o.x, o.y, o.z, o.w)
 
 
 def read_orientations(path: str | Path, topic: str) -> tuple[np.ndarray, np.ndarray]:

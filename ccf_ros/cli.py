@@ -1,0 +1,155 @@
+"""``ccf``: offline tools on recorded bags, no ROS install needed.
+
+Subcommands: replay, eval, simulate, demo. Errors are one line on stderr and exit code 2; Ctrl-C exits 130.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from .offline.bagio import BagError
+
+
+def _settings(args: argparse.Namespace) -> dict[str, Any]:
+    from .offline.params_file import load_params_file, parse_assignments
+
+    settings: dict[str, Any] = {}
+    if getattr(args, 'params_file', None):
+        settings.update(load_params_file(args.params_file))
+    settings.update(parse_assignments(getattr(args, 'param', None) or []))
+    if getattr(args, 'no_mag', False):
+        settings['use_mag'] = False
+    return settings
+
+
+def _engine(args: argparse.Namespace) -> Any:
+    from .engine import ImuEngine
+    from .settings import build
+
+    settings = _settings(args)
+    # A parameters file holds every parameter; only names given on the command line must apply.
+    filt, adapter = build(settings, strict=not getattr(args, 'params_file', None))
+    return ImuEngine(filt, adapter)
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from .offline.replay import replay
+
+    engine = _engine(args)
+    summary = replay(
+        args.bag,
+        args.output,
+        engine,
+        imu_topic=args.imu_topic,
+        mag_topic=None if args.no_mag else args.mag_topic,
+        storage=args.storage,
+        copy_input=args.copy_input,
+        overwrite=args.overwrite,
+    )
+    print(f'wrote {args.output}: {summary.line()}')
+    return 0
+
+
+def cmd_eval(args: argparse.Namespace) -> int:
+    from .offline.evaluate import evaluate, format_summary, load_aligned
+
+    aligned = load_aligned(
+        args.bag,
+        args.reference,
+        reference_bag=args.reference_bag,
+        estimate_topic=args.estimate_topic,
+        mask_topic=args.mask_topic,
+    )
+    s = evaluate(aligned)
+    print(format_summary(s, args.estimate_topic))
+    if args.json:
+        Path(args.json).write_text(json.dumps(s.as_dict(), indent=2))
+    if args.plot:
+        from .offline.plot import plot_rpy
+
+        plot_rpy(args.plot, aligned.t_s, aligned.q_ref, {args.estimate_topic: aligned.q_est}, title=str(args.bag))
+        print(f'plot: {args.plot}')
+    return 0
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from .offline.simulate import generate, write_bag
+
+    data = generate(args.duration, args.rate, args.seed)
+    write_bag(data, args.output, overwrite=args.overwrite, storage=args.storage)
+    print(f'wrote {args.output}: {len(data.t_s)} samples, {args.duration:g} s at {args.rate:g} Hz, seed {args.seed}')
+    return 0
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from .offline.demo import run_demo
+
+    return run_demo(Path(args.output_dir), duration_s=args.duration, seed=args.seed)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from . import __version__
+
+    p = argparse.ArgumentParser(prog='ccf', description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument('--version', action='version', version=f'ccf_ros {__version__}')
+    sub = p.add_subparsers(dest='command', required=True, metavar='COMMAND')
+
+    r = sub.add_parser('replay', help='run the filter over a bag, write /imu/data and /imu/gyro_bias to a new bag')
+    r.add_argument('bag', help='input: rosbag2 directory (mcap or sqlite3) or ROS 1 .bag')
+    r.add_argument('-o', '--output', required=True, help='output rosbag2 directory')
+    r.add_argument('--imu-topic', default='/imu/data_raw')
+    r.add_argument('--mag-topic', default='/imu/mag')
+    r.add_argument('--no-mag', action='store_true', help='ignore the magnetometer (6-D filter)')
+    r.add_argument('--params-file', help='ROS 2 parameters YAML, as for the node (config/ccf.yaml)')
+    r.add_argument('--param', action='append', metavar='NAME=VALUE', help='set one parameter (repeatable)')
+    r.add_argument('--copy-input', action='store_true', help='also copy every input message to the output')
+    r.add_argument('--overwrite', action='store_true', help='replace an existing output bag')
+    r.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap')
+    r.set_defaults(func=cmd_replay)
+
+    e = sub.add_parser('eval', help='score an orientation topic against a reference')
+    e.add_argument('bag', help='bag holding the estimate')
+    e.add_argument('--reference', required=True, help='reference topic (Imu, PoseStamped, QuaternionStamped, Odometry)')
+    e.add_argument('--reference-bag', help='bag holding the reference (default: BAG)')
+    e.add_argument('--estimate-topic', default='/imu/data')
+    e.add_argument('--mask-topic', help='std_msgs/Bool topic: score only where true (BROAD: /ground_truth/moving)')
+    e.add_argument('--json', metavar='FILE', help='write the figures as JSON')
+    e.add_argument('--plot', metavar='FILE.png', help='plot roll/pitch/yaw of estimate and reference')
+    e.set_defaults(func=cmd_eval)
+
+    s = sub.add_parser('simulate', help='write a synthetic IMU + magnetometer + ground-truth bag')
+    s.add_argument('-o', '--output', required=True)
+    s.add_argument('--duration', type=float, default=60.0, help='s (default 60)')
+    s.add_argument('--rate', type=float, default=286.0, help='Hz (default 286)')
+    s.add_argument('--seed', type=int, default=0)
+    s.add_argument('--overwrite', action='store_true')
+    s.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap')
+    s.set_defaults(func=cmd_simulate)
+
+    d = sub.add_parser('demo', help='simulate, filter, evaluate and plot: the main job on built-in data')
+    d.add_argument('--output-dir', default=str(Path(tempfile.gettempdir()) / 'ccf_demo'))
+    d.add_argument('--duration', type=float, default=60.0)
+    d.add_argument('--seed', type=int, default=1)
+    d.set_defaults(func=cmd_demo)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args))
+    except (BagError, ValueError) as err:
+        print(f'ccf {args.command}: error: {err}', file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f'ccf {args.command}: interrupted', file=sys.stderr)
+        return 130
+
+
+if __name__ == '__main__':
+    sys.exit(main())

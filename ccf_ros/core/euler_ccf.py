@@ -1,0 +1,188 @@
+"""The paper's cascaded complementary filter in per-axis Euler angles (``formulation: euler``), for reproduction.
+
+Narkhede et al. (Sensors 2021), eqs 12-14, discretised from the continuous eq 14 with forward Euler, per axis
+``i`` in (roll, pitch, yaw)::
+
+    e   = wrap(x_a - x)                    attitude error against the accelerometer/magnetometer angles (eqs 4-6)
+    I  += Ki * e * dt                      NCF integral (the bias estimate is -I, in Euler-rate space)
+    x_g += (rate + Kp * e + I) * dt        own integrator of the Euler rates
+    x   = alpha * x_g + (1 - alpha) * x_a  LCF blend
+
+with the correct Euler kinematics (the paper's eqs 1-3 have typos)::
+
+    phi'   = p + (q sin phi + r cos phi) tan theta
+    theta' = q cos phi - r sin phi
+    psi'   = (q sin phi + r cos phi) / cos theta
+
+Its transfer function from ``x_a`` to ``x`` is (1-a)s² + a Kp s + a Ki over s² + a Kp s + a Ki (``a`` = alpha), and
+from the rate ``a s / (s² + a Kp s + a Ki)`` (eq 15). It is singular at ±90° pitch, like every Euler form.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+from .base import CommonParams, OrientationFilter, check_range
+
+_PI = math.pi
+_TWO_PI = 2.0 * math.pi
+_HALF_PI = 0.5 * math.pi
+
+
+def _triple(name: str, value: float | Sequence[float]) -> tuple[float, float, float]:
+    """A per-axis (roll, pitch, yaw) value from a scalar or a 3-sequence."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return (float(value),) * 3
+    try:
+        vals = tuple(float(v) for v in value)  # type: ignore[union-attr]
+    except (TypeError, ValueError):
+        raise ValueError(f'{name} must be a number or 3 numbers (roll, pitch, yaw), got {value!r}') from None
+    if len(vals) != 3:
+        raise ValueError(f'{name} must be a number or 3 numbers (roll, pitch, yaw), got {value!r}')
+    return vals  # type: ignore[return-value]
+
+
+@dataclass(frozen=True)
+class EulerCcfParams(CommonParams):
+    """Parameters of :class:`EulerCcf` (paper defaults). Each gain is one value or ``(roll, pitch, yaw)``.
+
+    Attributes:
+        kp: proportional gain of the NCF PI controller, 1/s. Default 25 (paper).
+        ki: integral gain, 1/s². Default 0.1 (paper).
+        alpha: LCF weight of the integrated gyro path, applied per sample as in eq 14, in [0, 1]. Default 0.7.
+    """
+
+    kp: float | tuple[float, float, float] = 25.0
+    ki: float | tuple[float, float, float] = 0.1
+    alpha: float | tuple[float, float, float] = 0.7
+    _kp3: tuple[float, float, float] = field(init=False, repr=False, compare=False)
+    _ki3: tuple[float, float, float] = field(init=False, repr=False, compare=False)
+    _alpha3: tuple[float, float, float] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        kp = _triple('kp', self.kp)
+        ki = _triple('ki', self.ki)
+        alpha = _triple('alpha', self.alpha)
+        for name, vals, hi in (('kp', kp, 1e6), ('ki', ki, 1e6), ('alpha', alpha, 1.0)):
+            for v in vals:
+                check_range(name, v, 0.0, hi)
+        object.__setattr__(self, '_kp3', kp)
+        object.__setattr__(self, '_ki3', ki)
+        object.__setattr__(self, '_alpha3', alpha)
+
+
+def acc_mag_euler(
+    ax: float, ay: float, az: float, mx: float, my: float, mz: float, mag_ok: bool, yaw_fallback: float
+) -> tuple[float, float, float]:
+    """Roll, pitch (eqs 4-5) and tilt-compensated yaw (eq 6, ENU: yaw 0 = body x east), rad."""
+    roll = math.atan2(ay, az)
+    pitch = math.atan2(-ax, math.sqrt(ay * ay + az * az))
+    if not mag_ok:
+        return roll, pitch, yaw_fallback
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    # Field rotated into the level (heading) frame: Ry(pitch) Rx(roll) m.
+    my_l = my * cr - mz * sr
+    mz_r = my * sr + mz * cr
+    mx_l = mx * cp + mz_r * sp
+    # The level field must point to world +y (north): Rz(yaw) (mx_l, my_l) = (0, +).
+    return roll, pitch, math.atan2(mx_l, my_l)
+
+
+class EulerCcf(OrientationFilter):
+    """The paper's CCF per Euler axis (see module docstring). State: angles, own integrator, integral term."""
+
+    name = 'ccf_euler'
+    params: EulerCcfParams
+
+    def __init__(self, params: EulerCcfParams | None = None) -> None:
+        super().__init__(params if params is not None else EulerCcfParams())
+
+    def _reset_state(self) -> None:
+        self._x = [0.0, 0.0, 0.0]
+        self._xg = [0.0, 0.0, 0.0]
+        self._i = [0.0, 0.0, 0.0]
+
+    def _init(self, ax: float, ay: float, az: float, mx: float, my: float, mz: float, mag_ok: bool) -> None:
+        xa = acc_mag_euler(ax, ay, az, mx, my, mz, mag_ok, 0.0)
+        self._x = list(xa)
+        self._xg = list(xa)
+        self._set_q()
+
+    def _set_q(self) -> None:
+        r, p, y = self._x
+        cr, sr = math.cos(0.5 * r), math.sin(0.5 * r)
+        cp, sp = math.cos(0.5 * p), math.sin(0.5 * p)
+        cy, sy = math.cos(0.5 * y), math.sin(0.5 * y)
+        self._q = (
+            cr * cp * cy + sr * sp * sy,
+            sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy,
+        )
+
+    def _step(
+        self,
+        dt: float,
+        gx: float,
+        gy: float,
+        gz: float,
+        ax: float,
+        ay: float,
+        az: float,
+        acc_n2: float,
+        mx: float,
+        my: float,
+        mz: float,
+        mag_n2: float,
+    ) -> None:
+        x = self._x
+        phi, theta = x[0], x[1]
+        sphi, cphi = math.sin(phi), math.cos(phi)
+        ctheta = math.cos(theta)
+        # Keep away from the singularity instead of dividing by zero.
+        if abs(ctheta) < 1e-6:
+            ctheta = math.copysign(1e-6, ctheta)
+        u = gy * sphi + gz * cphi
+        rates = (gx + u * math.sin(theta) / ctheta, gy * cphi - gz * sphi, u / ctheta)
+        p = self.params
+        kp, ki, alpha = p._kp3, p._ki3, p._alpha3
+        if acc_n2:
+            xa = acc_mag_euler(ax, ay, az, mx, my, mz, mag_n2 != 0.0, x[2])
+        for i in range(3):
+            if acc_n2 and (i < 2 or mag_n2):
+                e = (xa[i] - x[i] + _PI) % _TWO_PI - _PI
+                self._i[i] += ki[i] * e * dt
+                xg = self._xg[i] + (rates[i] + kp[i] * e + self._i[i]) * dt
+                xg = (xg + _PI) % _TWO_PI - _PI
+                self._xg[i] = xg
+                # alpha * x_g + (1 - alpha) * x_a, taken across the +-pi seam
+                x[i] = (xa[i] + alpha[i] * ((xg - xa[i] + _PI) % _TWO_PI - _PI) + _PI) % _TWO_PI - _PI
+            else:
+                # No attitude measurement for this axis: the estimate follows the corrected rate.
+                xg = (self._xg[i] + (rates[i] + self._i[i]) * dt + _PI) % _TWO_PI - _PI
+                x[i] = (x[i] + (rates[i] + self._i[i]) * dt + _PI) % _TWO_PI - _PI
+                self._xg[i] = xg
+        x[1] = max(-_HALF_PI, min(_HALF_PI, x[1]))
+        self._set_q()
+
+    @property
+    def gyro_bias(self) -> tuple[float, float, float]:
+        """Bias estimate mapped from Euler-rate space (``-I``) to body rates, rad/s."""
+        dphi, dtheta, dpsi = (-self._i[0], -self._i[1], -self._i[2])
+        phi, theta = self._x[0], self._x[1]
+        sphi, cphi = math.sin(phi), math.cos(phi)
+        sth, cth = math.sin(theta), math.cos(theta)
+        return (
+            dphi - dpsi * sth,
+            dtheta * cphi + dpsi * sphi * cth,
+            -dtheta * sphi + dpsi * cphi * cth,
+        )
+
+    @property
+    def orientation_variance(self) -> tuple[float, float, float]:
+        """A fixed figure: the Euler form keeps no uncertainty estimate; 2° inclination, 5° heading."""
+        return ((2.0 * math.pi / 180) ** 2,) * 2 + ((5.0 * math.pi / 180) ** 2,)

@@ -1,0 +1,85 @@
+"""The per-message path shared by ``ccf_node`` and ``ccf replay``: pair magnetometer, run the core, shape output.
+
+No ROS import: the adapters convert messages to floats, call :meth:`ImuEngine.on_imu`/:meth:`ImuEngine.on_mag`
+in arrival order, and convert the :class:`Output` back. Same input in the same order -> same output, bit for bit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from .core.base import ANSWERED_BELOW, OrientationFilter, Status
+from .core.pairing import MagPairer
+from .core.quaternion import to_xyzw
+from .settings import AdapterSettings
+
+
+@dataclass(frozen=True)
+class Output:
+    """One answered IMU sample.
+
+    Attributes:
+        orientation_xyzw: body->world orientation in message order.
+        covariance: row-major 3x3 orientation covariance (rad²), 9 values.
+        bias: gyro-bias estimate, rad/s, body frame.
+        status: the core's :class:`~ccf_ros.core.base.Status`.
+    """
+
+    orientation_xyzw: tuple[float, float, float, float]
+    covariance: tuple[float, ...]
+    bias: tuple[float, float, float]
+    status: int
+
+
+class ImuEngine:
+    """Magnetometer pairing + filter + covariance for a stream of IMU/magnetometer messages."""
+
+    def __init__(self, filt: OrientationFilter, settings: AdapterSettings | None = None) -> None:
+        self.filter = filt
+        self.settings = settings or AdapterSettings()
+        self.pairer = MagPairer(timeout_s=self.settings.mag_timeout_s)
+        self.n_in = 0
+        self._t_const = 0.0
+
+    def reset(self) -> None:
+        """Fresh filter state and no magnetometer history (parameters kept)."""
+        self.filter.reset()
+        self.pairer.reset()
+        self._t_const = 0.0
+
+    def on_mag(self, t_s: float, field: tuple[float, float, float]) -> None:
+        """A magnetometer message: stamp (s), field (any unit, body frame)."""
+        self.pairer.add(t_s, field)
+
+    def on_imu(
+        self, t_s: float, gyr: tuple[float, float, float], acc: tuple[float, float, float]
+    ) -> Output | None:
+        """An IMU message: stamp (s), rate (rad/s), specific force (m/s²). None if the sample was skipped."""
+        self.n_in += 1
+        mag = self.pairer.get(t_s)
+        if self.settings.constant_dt > 0.0:
+            # Fixed sample period: a synthetic clock advanced per message replaces the header stamps.
+            self._t_const += self.settings.constant_dt
+            t_s = self._t_const
+        f = self.filter
+        status = f.update(t_s, gyr, acc, mag)
+        if status >= ANSWERED_BELOW:
+            return None
+        sd = self.settings.orientation_stddev
+        vr, vp, vy = (sd * sd,) * 3 if sd > 0.0 else f.orientation_variance
+        q = f.quaternion
+        return Output(
+            orientation_xyzw=to_xyzw(q),
+            covariance=(vr, 0.0, 0.0, 0.0, vp, 0.0, 0.0, 0.0, vy),
+            bias=f.gyro_bias,
+            status=status,
+        )
+
+    def skipped_by_reason(self) -> dict[str, int]:
+        """Counts of skipped samples by reason name (only non-zero ones)."""
+        c = self.filter.counts
+        return {Status(i).name.lower(): c[i] for i in range(ANSWERED_BELOW, len(c)) if c[i]}
+
+    def answered(self) -> int:
+        """Number of samples that produced an output."""
+        return sum(self.filter.counts[:ANSWERED_BELOW])

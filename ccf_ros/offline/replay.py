@@ -1,0 +1,179 @@
+"""``ccf replay``: run the core over a recorded bag and write ``/imu/data`` and ``/imu/gyro_bias`` to a new bag."""
+
+from __future__ import annotations
+
+import shutil
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..engine import ImuEngine
+from .bagio import BagError, connections_for, open_bag, stamp_s, typestore
+
+
+@dataclass
+class ReplaySummary:
+    """What a replay did: input samples, answered samples, skipped by reason, wall time (s)."""
+
+    n_in: int = 0
+    n_out: int = 0
+    skipped: dict[str, int] = field(default_factory=dict)
+    n_no_acc: int = 0
+    n_no_mag: int = 0
+    wall_s: float = 0.0
+
+    def line(self) -> str:
+        skipped = ', '.join(f'{k} {v}' for k, v in sorted(self.skipped.items())) or 'none'
+        rate = self.n_in / self.wall_s if self.wall_s > 0 else float('nan')
+        return (
+            f'samples in {self.n_in}, out {self.n_out}, skipped: {skipped}; gyro-only (bad accelerometer) '
+            f'{self.n_no_acc}, no heading (bad magnetometer) {self.n_no_mag}; {rate:,.0f} samples/s'
+        )
+
+
+def _storage(name: str) -> Any:
+    from rosbags.rosbag2 import StoragePlugin
+
+    try:
+        return {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}[name]
+    except KeyError:
+        raise BagError(f'unknown storage {name!r} (mcap or sqlite3)') from None
+
+
+def replay(
+    bag_in: str | Path,
+    bag_out: str | Path,
+    engine: ImuEngine,
+    *,
+    imu_topic: str = '/imu/data_raw',
+    mag_topic: str | None = '/imu/mag',
+    out_imu_topic: str = '/imu/data',
+    out_bias_topic: str = '/imu/gyro_bias',
+    storage: str = 'mcap',
+    copy_input: bool = False,
+    overwrite: bool = False,
+    progress: bool | None = None,
+) -> ReplaySummary:
+    """Replay ``bag_in`` through ``engine`` into a new rosbag2 ``bag_out``.
+
+    Written to a temporary sibling and renamed at the end: an error or Ctrl-C leaves no half bag behind.
+
+    Raises:
+        BagError: unreadable input, missing IMU topic, or ``bag_out`` exists without ``overwrite``.
+    """
+    from rosbags.rosbag2 import Writer
+
+    bag_out = Path(bag_out)
+    if bag_out.exists() and not overwrite:
+        raise BagError(f'{bag_out} exists; pass --overwrite to replace it')
+    if bag_out.resolve() == Path(bag_in).resolve():
+        raise BagError('output bag must differ from the input bag')
+    tmp = bag_out.with_name(f'.{bag_out.name}.partial')
+    if tmp.exists():
+        shutil.rmtree(tmp) if tmp.is_dir() else tmp.unlink()
+    ts = typestore()
+    Imu = ts.types['sensor_msgs/msg/Imu']
+    Header = ts.types['std_msgs/msg/Header']
+    Time = ts.types['builtin_interfaces/msg/Time']
+    Quaternion = ts.types['geometry_msgs/msg/Quaternion']
+    Vector3 = ts.types['geometry_msgs/msg/Vector3']
+    Vector3Stamped = ts.types['geometry_msgs/msg/Vector3Stamped']
+    serialize = ts.serialize_cdr
+    summary = ReplaySummary()
+    t0 = time.perf_counter()
+    try:
+        with open_bag(bag_in) as reader:
+            imu_conns = connections_for(reader, imu_topic)
+            mag_conns = connections_for(reader, mag_topic, required=False) if mag_topic else []
+            conns = imu_conns + mag_conns
+            if copy_input:
+                conns = list(reader.connections)
+            n_total = sum(c.msgcount for c in imu_conns)
+            is_ros1 = not reader.is2
+            with Writer(tmp, version=9, storage_plugin=_storage(storage)) as writer:
+                w_imu = writer.add_connection(out_imu_topic, Imu.__msgtype__, typestore=ts)
+                w_bias = writer.add_connection(out_bias_topic, Vector3Stamped.__msgtype__, typestore=ts)
+                w_copy: dict[int, Any] = {}
+                if copy_input:
+                    for c in reader.connections:
+                        if c.topic in (out_imu_topic, out_bias_topic):
+                            continue
+                        w_copy[c.id] = writer.add_connection(c.topic, c.msgtype, typestore=ts)
+                from tqdm import tqdm
+
+                bar = tqdm(
+                    total=n_total,
+                    unit='msg',
+                    disable=(not sys.stderr.isatty()) if progress is None else not progress,
+                    desc='replay',
+                    mininterval=0.5,
+                )
+                imu_ids = {c.id for c in imu_conns}
+                mag_ids = {c.id for c in mag_conns}
+                on_imu = engine.on_imu
+                try:
+                    for conn, t_rec, raw in reader.messages(connections=conns):
+                        cid = conn.id
+                        if cid in w_copy:
+                            data = ts.ros1_to_cdr(raw, conn.msgtype) if is_ros1 else raw
+                            writer.write(w_copy[cid], t_rec, data)
+                        if cid in imu_ids:
+                            msg = reader.deserialize(raw, conn.msgtype)
+                            h = msg.header
+                            g = msg.angular_velocity
+                            a = msg.linear_acceleration
+                            out = on_imu(stamp_s(h), (g.x, g.y, g.z), (a.x, a.y, a.z))
+                            bar.update(1)
+                            if out is None:
+                                continue
+                            header = Header(stamp=Time(sec=h.stamp.sec, nanosec=h.stamp.nanosec), frame_id=h.frame_id)
+                            x, y, z, w = out.orientation_xyzw
+                            imu = Imu(
+                                header=header,
+                                orientation=Quaternion(x=x, y=y, z=z, w=w),
+                                orientation_covariance=np.array(out.covariance, dtype=np.float64),
+                                angular_velocity=Vector3(x=g.x, y=g.y, z=g.z),
+                                angular_velocity_covariance=np.asarray(msg.angular_velocity_covariance, dtype=np.float64),
+                                linear_acceleration=Vector3(x=a.x, y=a.y, z=a.z),
+                                linear_acceleration_covariance=np.asarray(
+                                    msg.linear_acceleration_covariance, dtype=np.float64
+                                ),
+                            )
+                            bx, by, bz = out.bias
+                            writer.write(w_imu, t_rec, serialize(imu, Imu.__msgtype__))
+                            writer.write(
+                                w_bias,
+                                t_rec,
+                                serialize(
+                                    Vector3Stamped(header=header, vector=Vector3(x=bx, y=by, z=bz)),
+                                    Vector3Stamped.__msgtype__,
+                                ),
+                            )
+                            summary.n_out += 1
+                        elif cid in mag_ids:
+                            msg = reader.deserialize(raw, conn.msgtype)
+                            f = msg.magnetic_field
+                            engine.on_mag(stamp_s(msg.header), (f.x, f.y, f.z))
+                except BagError:
+                    raise
+                except Exception as err:
+                    raise BagError(f'{bag_in}: bag is unreadable or truncated: {err}') from None
+                finally:
+                    bar.close()
+        if bag_out.exists():
+            shutil.rmtree(bag_out) if bag_out.is_dir() else bag_out.unlink()
+        tmp.rename(bag_out)
+    except BaseException:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    summary.n_in = engine.n_in
+    summary.skipped = engine.skipped_by_reason()
+    summary.n_no_acc = engine.filter.n_no_acc
+    summary.n_no_mag = engine.filter.n_no_mag
+    summary.wall_s = time.perf_counter() - t0
+    return summary

@@ -1,0 +1,160 @@
+"""``ccf simulate``: synthetic IMU, magnetometer and ground truth in the BROAD topic layout."""
+
+from __future__ import annotations
+
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..core.quaternion import quat_conj, quat_from_rotvec, quat_mul, quat_rotate, to_xyzw
+from .bagio import BagError, typestore
+
+G = 9.80665
+#: Earth field in ENU (tesla): 50 µT, dip 60° (roughly central Europe).
+MAG_WORLD = 50e-6 * np.array([0.0, np.cos(np.radians(60.0)), -np.sin(np.radians(60.0))])
+
+
+@dataclass
+class SimData:
+    """Synthetic recording. t_s (N,); q_true (N,4) body->ENU; gyr (N,3) rad/s; acc (N,3) m/s²; mag (N,3) T;
+    bias (N,3) true gyro bias rad/s; moving (N,) bool."""
+
+    t_s: np.ndarray
+    q_true: np.ndarray
+    gyr: np.ndarray
+    acc: np.ndarray
+    mag: np.ndarray
+    bias: np.ndarray
+    moving: np.ndarray
+
+
+def _smooth(t: np.ndarray, rng: np.random.Generator, amp: float, f_lo: float, f_hi: float, n: int = 4) -> np.ndarray:
+    """Sum of ``n`` random sinusoids per axis: (N, 3) values and the component functions' parameters."""
+    out = np.zeros((len(t), 3))
+    for axis in range(3):
+        for _ in range(n):
+            f = rng.uniform(f_lo, f_hi)
+            out[:, axis] += amp / n * rng.uniform(0.5, 1.5) * np.sin(2 * np.pi * f * t + rng.uniform(0, 2 * np.pi))
+    return out
+
+
+def generate(
+    duration_s: float = 60.0,
+    rate_hz: float = 286.0,
+    seed: int = 0,
+    *,
+    rest_s: float = 5.0,
+    gyro_noise_rad_s: float = 0.005,
+    acc_noise_m_s2: float = 0.05,
+    mag_noise_t: float = 0.5e-6,
+    bias_init_rad_s: float = np.radians(0.5),
+    bias_walk_rad_s_sqrt_s: float = 2e-4,
+    t0_s: float = 1.7e9,
+) -> SimData:
+    """Hand-held-like motion: smooth rotations up to ~±80°, slow heading changes, small translations.
+
+    Deterministic for a seed. The gyro bias starts at ``N(0, bias_init)`` per axis and random-walks.
+    """
+    if not (duration_s > 0 and rate_hz > 0):
+        raise ValueError(f'duration and rate must be > 0, got {duration_s!r}, {rate_hz!r}')
+    rng = np.random.default_rng(seed)
+    n = int(round(duration_s * rate_hz))
+    tr = np.arange(n) / rate_hz
+    rest = min(rest_s, duration_s / 4)
+    # Smooth 0 -> 1 ramp after the initial rest: motion starts gently.
+    ramp = np.clip((tr - rest) / 2.0, 0.0, 1.0)
+    ramp = ramp * ramp * (3 - 2 * ramp)
+    params_rot = [(rng.uniform(0.05, 0.4), rng.uniform(0, 2 * np.pi), rng.uniform(0.3, 0.9)) for _ in range(9)]
+    yaw_rate = rng.uniform(-0.3, 0.3)
+
+    def rotvec(t: np.ndarray) -> np.ndarray:
+        r_ = np.clip((t - rest) / 2.0, 0.0, 1.0)
+        r_ = r_ * r_ * (3 - 2 * r_)
+        out = np.zeros((len(t), 3))
+        for k, (f, ph, a) in enumerate(params_rot):
+            out[:, k % 3] += a / 3 * np.sin(2 * np.pi * f * t + ph) - a / 3 * np.sin(2 * np.pi * f * rest + ph)
+        return out * r_[:, None]
+
+    def orientation(t: np.ndarray) -> np.ndarray:
+        yaw = yaw_rate * np.maximum(t - rest, 0.0)
+        q_yaw = np.stack((np.cos(yaw / 2), 0 * yaw, 0 * yaw, np.sin(yaw / 2)), axis=-1)
+        return quat_mul(q_yaw, quat_from_rotvec(rotvec(t)))
+
+    q = orientation(tr)
+    h = 1e-4
+    dq = (orientation(tr + h) - orientation(tr - h)) / (2 * h)
+    omega = 2.0 * quat_mul(quat_conj(q), dq)[:, 1:]
+    pos_amp = 0.1
+    acc_lin = np.zeros((n, 3))
+    for axis in range(3):
+        for _ in range(3):
+            f = rng.uniform(0.2, 1.5)
+            ph = rng.uniform(0, 2 * np.pi)
+            acc_lin[:, axis] -= pos_amp / 3 * (2 * np.pi * f) ** 2 * np.sin(2 * np.pi * f * tr + ph)
+    acc_lin *= ramp[:, None]
+    q_inv = quat_conj(q)
+    acc = quat_rotate(q_inv, acc_lin + [0.0, 0.0, G]) + acc_noise_m_s2 * rng.standard_normal((n, 3))
+    mag = quat_rotate(q_inv, np.broadcast_to(MAG_WORLD, (n, 3))) + mag_noise_t * rng.standard_normal((n, 3))
+    bias = bias_init_rad_s * rng.standard_normal(3) + np.cumsum(
+        bias_walk_rad_s_sqrt_s / np.sqrt(rate_hz) * rng.standard_normal((n, 3)), axis=0
+    )
+    gyr = omega + bias + gyro_noise_rad_s * rng.standard_normal((n, 3))
+    return SimData(t_s=t0_s + tr, q_true=q, gyr=gyr, acc=acc, mag=mag, bias=bias, moving=tr >= rest)
+
+
+def write_bag(data: SimData, path: str | Path, *, overwrite: bool = False, storage: str = 'mcap') -> None:
+    """Write ``data`` as a rosbag2 with /imu/mag, /imu/data_raw, /ground_truth/pose, /ground_truth/moving."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    path = Path(path)
+    if path.exists():
+        if not overwrite:
+            raise BagError(f'{path} exists; pass --overwrite to replace it')
+        shutil.rmtree(path) if path.is_dir() else path.unlink()
+    ts = typestore()
+    T = ts.types
+    Header, Time = T['std_msgs/msg/Header'], T['builtin_interfaces/msg/Time']
+    Vector3, Quaternion = T['geometry_msgs/msg/Vector3'], T['geometry_msgs/msg/Quaternion']
+    Imu, MagneticField = T['sensor_msgs/msg/Imu'], T['sensor_msgs/msg/MagneticField']
+    PoseStamped, Pose, Point = T['geometry_msgs/msg/PoseStamped'], T['geometry_msgs/msg/Pose'], T['geometry_msgs/msg/Point']
+    Bool = T['std_msgs/msg/Bool']
+    ser = ts.serialize_cdr
+    cov0 = np.zeros(9)
+    cov_unknown = np.array([-1.0] + [0.0] * 8)
+    plugin = StoragePlugin.MCAP if storage == 'mcap' else StoragePlugin.SQLITE3
+    tmp = path.with_name(f'.{path.name}.partial')
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    try:
+        with Writer(tmp, version=9, storage_plugin=plugin) as w:
+            c_mag = w.add_connection('/imu/mag', MagneticField.__msgtype__, typestore=ts)
+            c_imu = w.add_connection('/imu/data_raw', Imu.__msgtype__, typestore=ts)
+            c_gt = w.add_connection('/ground_truth/pose', PoseStamped.__msgtype__, typestore=ts)
+            c_mv = w.add_connection('/ground_truth/moving', Bool.__msgtype__, typestore=ts)
+            ns = np.round(data.t_s * 1e9).astype(np.int64).tolist()
+            gyr, acc, mag, qt = data.gyr.tolist(), data.acc.tolist(), data.mag.tolist(), data.q_true.tolist()
+            moving = data.moving.tolist()
+            for k, t_ns in enumerate(ns):
+                hdr = Header(stamp=Time(sec=t_ns // 1_000_000_000, nanosec=t_ns % 1_000_000_000), frame_id='imu_link')
+                m = mag[k]
+                w.write(c_mag, t_ns, ser(MagneticField(header=hdr, magnetic_field=Vector3(x=m[0], y=m[1], z=m[2]),
+                                                       magnetic_field_covariance=cov0), MagneticField.__msgtype__))
+                g, a = gyr[k], acc[k]
+                w.write(c_imu, t_ns, ser(Imu(header=hdr, orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0),
+                                             orientation_covariance=cov_unknown,
+                                             angular_velocity=Vector3(x=g[0], y=g[1], z=g[2]),
+                                             angular_velocity_covariance=cov0,
+                                             linear_acceleration=Vector3(x=a[0], y=a[1], z=a[2]),
+                                             linear_acceleration_covariance=cov0), Imu.__msgtype__))
+                x, y, z, ww = to_xyzw(tuple(qt[k]))  # type: ignore[arg-type]
+                gt_hdr = Header(stamp=hdr.stamp, frame_id='world')
+                w.write(c_gt, t_ns, ser(PoseStamped(header=gt_hdr, pose=Pose(position=Point(x=0.0, y=0.0, z=0.0),
+                                                                            orientation=Quaternion(x=x, y=y, z=z, w=ww))),
+                                        PoseStamped.__msgtype__))
+                w.write(c_mv, t_ns, ser(Bool(data=moving[k]), Bool.__msgtype__))
+        tmp.rename(path)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise

@@ -1,0 +1,101 @@
+"""Every user-facing setting of ccf_ros in one place: filter parameters (core) and adapter parameters.
+
+The node, ``ccf replay --param/--params-file`` and ``config/ccf.yaml`` all use these names. No ROS import.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from .core.registry import all_param_names, defaults as filter_defaults, make_filter
+from .core.base import OrientationFilter
+
+#: Settings of the adapters (node and replay), with defaults.
+ADAPTER_DEFAULTS: dict[str, Any] = {
+    'mag_timeout_s': 0.5,
+    'constant_dt': 0.0,
+    'orientation_stddev': 0.0,
+    'publish_debug_topics': False,
+    'qos_reliability': 'best_effort',
+    'qos_depth': 50,
+}
+
+#: One line per setting, for config/ccf.yaml, the node's parameter descriptors and the README.
+DESCRIPTIONS: dict[str, str] = {
+    'filter': 'filter algorithm: ccf',
+    'formulation': 'quaternion (default, any attitude) or euler (the paper\'s per-axis form, singular at +-90 deg pitch)',
+    'max_dt_s': 'gap longer than this (s) re-initialises from accelerometer/magnetometer instead of integrating',
+    'use_mag': 'use the magnetometer for heading (false: 6-D, heading drifts)',
+    'world_frame': 'world frame of the output orientation: enu (REP-103), ned or nwu',
+    'tau_acc_s': 'quaternion: time constant of the accelerometer (inclination) blend, s',
+    'tau_mag_s': 'quaternion: time constant of the magnetometer (heading) blend, s',
+    'tau_bias_s': 'quaternion: NCF integral time constant of the gyro-bias estimate while moving, s',
+    'rest_bias': 'quaternion: estimate the gyro bias from the gyro itself while at rest',
+    'rest_gyro_rad_s': 'quaternion: rest if the gyro stays within this of its low-pass, rad/s',
+    'rest_acc_m_s2': 'quaternion: ... and the accelerometer within this of its low-pass, m/s^2',
+    'rest_min_s': 'quaternion: ... for at least this long, s',
+    'rest_tau_s': 'quaternion: time constant of the rest low-pass filters and rest bias update, s',
+    'bias_max_rad_s': 'quaternion: largest gyro bias believed, rad/s',
+    'mag_norm_tol': 'quaternion: relative magnetometer-norm deviation that counts as disturbed',
+    'mag_dip_tol_rad': 'quaternion: magnetic dip deviation that counts as disturbed, rad',
+    'mag_reaccept_s': 'quaternion: a different but steady field becomes the new reference after this long, s',
+    'gyro_noise_rad_s': 'quaternion: gyro noise std (rad/s); only feeds the reported covariance',
+    'kp': 'euler: NCF proportional gain, 1/s (one value or [roll, pitch, yaw])',
+    'ki': 'euler: NCF integral gain, 1/s^2 (one value or [roll, pitch, yaw])',
+    'alpha': 'euler: LCF weight of the gyro path per sample, 0..1 (one value or [roll, pitch, yaw])',
+    'mag_timeout_s': 'magnetometer samples older than this (s) are not paired with an IMU sample',
+    'constant_dt': 'fixed sample period (s) instead of header stamps; 0 = use header stamps',
+    'orientation_stddev': 'fixed orientation std (rad) for the covariance; 0 = the filter\'s own estimate',
+    'publish_debug_topics': 'node: also publish imu/rpy (roll, pitch, yaw in rad)',
+    'qos_reliability': 'node: input QoS reliability, best_effort (sensor data) or reliable',
+    'qos_depth': 'node: input QoS queue depth',
+}
+
+
+def all_defaults() -> dict[str, Any]:
+    """Every setting with its default: filter parameters then adapter parameters."""
+    out = filter_defaults()
+    out.update(ADAPTER_DEFAULTS)
+    return out
+
+
+@dataclass(frozen=True)
+class AdapterSettings:
+    """Adapter settings shared by node and replay (see :data:`DESCRIPTIONS`)."""
+
+    mag_timeout_s: float = 0.5
+    constant_dt: float = 0.0
+    orientation_stddev: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not self.mag_timeout_s > 0:
+            raise ValueError(f'mag_timeout_s must be > 0, got {self.mag_timeout_s!r}')
+        if not self.constant_dt >= 0:
+            raise ValueError(f'constant_dt must be >= 0, got {self.constant_dt!r}')
+        if not self.orientation_stddev >= 0:
+            raise ValueError(f'orientation_stddev must be >= 0, got {self.orientation_stddev!r}')
+
+
+def build(settings: Mapping[str, Any], *, strict: bool = True) -> tuple[OrientationFilter, AdapterSettings]:
+    """Filter and adapter settings from a flat mapping; ValueError names any unknown or invalid setting."""
+    filt_part: dict[str, Any] = {}
+    adapter: dict[str, Any] = {}
+    known = all_param_names()
+    for name, value in settings.items():
+        if name in ADAPTER_DEFAULTS:
+            adapter[name] = value
+        elif name in known:
+            filt_part[name] = value
+        else:
+            raise ValueError(f'unknown parameter {name!r}; known: {", ".join(sorted(known | set(ADAPTER_DEFAULTS)))}')
+    filt = make_filter(filt_part, strict=strict)
+    kw = {}
+    for name in ('mag_timeout_s', 'constant_dt', 'orientation_stddev'):
+        if name in adapter:
+            try:
+                kw[name] = float(adapter[name])
+            except (TypeError, ValueError):
+                raise ValueError(f'{name} must be a number, got {adapter[name]!r}') from None
+    return filt, AdapterSettings(**kw)

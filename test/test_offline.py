@@ -1,0 +1,278 @@
+"""Offline pipeline on real bags: replay, bad samples, error rules, eval, simulate, input formats."""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ccf_ros.cli import main as ccf
+from ccf_ros.core import make_filter, run_batch
+from ccf_ros.core.metrics import summarize
+from ccf_ros.offline.bagio import read_imu_arrays, read_orientations
+from ccf_ros.offline.evaluate import evaluate, load_aligned
+
+from conftest import copy_bag
+
+
+def _stamp(msg, t_s):
+    msg.header.stamp.sec = int(t_s)
+    msg.header.stamp.nanosec = int(round((t_s - int(t_s)) * 1e9))
+
+
+@pytest.fixture(scope='module')
+def faulty_trial(short_trial: Path, tmp_path_factory) -> tuple[Path, dict[str, int]]:
+    """The real trial with NaN/Inf, zero vectors, duplicated and backward stamps and a 30 s gap injected."""
+    k = {'imu': 0, 'mag': 0}
+    injected = {'nan_gyro': 0, 'inf_gyro': 0, 'dup': 0, 'back': 0}
+    gap_s = 30.0
+
+    def edit(topic, msg, t):
+        if topic == '/imu/data_raw':
+            i = k['imu']
+            k['imu'] += 1
+            st = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+            if i > 10000:  # 30 s gap after ~35 s
+                _stamp(msg, st + gap_s)
+                t += int(gap_s * 1e9)
+            if i % 997 == 5:
+                msg.angular_velocity.x = float('nan')
+                injected['nan_gyro'] += 1
+            elif i % 1009 == 7:
+                msg.angular_velocity.z = float('inf')
+                injected['inf_gyro'] += 1
+            elif i % 499 == 3:
+                msg.linear_acceleration.x = msg.linear_acceleration.y = msg.linear_acceleration.z = 0.0
+            elif i % 503 == 4:
+                msg.linear_acceleration.y = float('nan')
+            if i % 701 == 11:
+                injected['dup'] += 1
+                return [(msg, t), (copy.deepcopy(msg), t)]
+            if i % 809 == 13:
+                injected['back'] += 1
+                back = copy.deepcopy(msg)
+                _stamp(back, st - 0.5)
+                return [(msg, t), (back, t)]
+            return [(msg, t)]
+        if topic == '/imu/mag':
+            j = k['mag']
+            k['mag'] += 1
+            if j > 10000:
+                st = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+                _stamp(msg, st + gap_s)
+                t += int(gap_s * 1e9)
+            if j % 401 == 9:
+                msg.magnetic_field.x = msg.magnetic_field.y = msg.magnetic_field.z = 0.0
+            elif j % 409 == 10:
+                msg.magnetic_field.z = float('-inf')
+            return [(msg, t)]
+        if topic == '/ground_truth/pose' and k['imu'] > 10000:
+            st = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+            _stamp(msg, st + gap_s)
+            return [(msg, t + int(gap_s * 1e9))]
+        return [(msg, t)]
+
+    path = copy_bag(short_trial, tmp_path_factory.mktemp('faulty') / 'faulty', edit=edit)
+    return path, injected
+
+
+def test_replay_real_trial_answers_every_sample_accurately(short_trial, tmp_path, capsys):
+    out = tmp_path / 'out'
+    assert ccf(['replay', str(short_trial), '-o', str(out)]) == 0
+    line = capsys.readouterr().out
+    assert 'skipped: none' in line
+    imu = read_imu_arrays(short_trial)
+    t_est, q_est = read_orientations(out, '/imu/data')
+    assert np.array_equal(t_est, imu.t_s)
+    assert np.all(np.isfinite(q_est))
+    np.testing.assert_allclose(np.linalg.norm(q_est, axis=1), 1.0, atol=1e-9)
+    s = evaluate(load_aligned(out, '/ground_truth/pose', reference_bag=short_trial, mask_topic='/ground_truth/moving'))
+    assert s.n_missing == 0 and s.n_scored > 1000
+    assert s.total_rmse_deg < 3.0  # VQF online scores 1.38 deg on this whole trial, Madgwick 1.67
+    # replay path == batch path
+    batch = run_batch(make_filter(), imu.t_s, imu.gyr, imu.acc, imu.mag)
+    assert np.array_equal(np.where(batch.quat[:, :1] < 0, -batch.quat, batch.quat),
+                          np.where(q_est[:, :1] < 0, -q_est, q_est))
+
+
+def test_replay_survives_injected_faults(faulty_trial, tmp_path, capsys):
+    path, injected = faulty_trial
+    out = tmp_path / 'out'
+    assert ccf(['replay', str(path), '-o', str(out)]) == 0
+    line = capsys.readouterr().out
+    imu = read_imu_arrays(path)
+    t_est, q_est = read_orientations(out, '/imu/data')
+    assert np.all(np.isfinite(q_est))
+    np.testing.assert_allclose(np.linalg.norm(q_est, axis=1), 1.0, atol=1e-9)
+    n_bad_gyro = injected['nan_gyro'] + injected['inf_gyro']
+    n_bad_stamp = injected['dup'] + injected['back']
+    assert f'skipped_bad_gyro {n_bad_gyro}' in line
+    assert f'skipped_stamp {n_bad_stamp}' in line
+    assert len(t_est) == len(imu.t_s) - n_bad_gyro - n_bad_stamp
+    assert np.all(np.diff(t_est) > 0)  # output stamps strictly increase
+    # after the 30 s gap the filter re-initialises and stays accurate
+    t_ref, q_ref = read_orientations(path, '/ground_truth/pose')
+    from ccf_ros.offline.evaluate import align
+
+    after = t_ref > t_ref[0] + 66.0
+    s = summarize(align(t_est, q_est, t_ref[after], q_ref[after]), q_ref[after])
+    assert s.total_rmse_deg < 5.0
+
+
+def test_filter_statuses_for_each_bad_sample_rule():
+    f = make_filter()
+    g, a, m = (0.0, 0.0, 0.0), (0.0, 0.0, 9.81), (0.0, 2e-5, -4e-5)
+    assert f.update(0.0, g, (0.0, 0.0, 0.0), m) == 5  # no accelerometer yet -> no output
+    assert f.update(0.01, g, a, m) == 1  # initialised
+    assert f.update(0.02, (float('nan'), 0.0, 0.0), a, m) == 3
+    assert f.update(0.02, g, a, m) == 0
+    assert f.update(0.02, g, a, m) == 4  # duplicate stamp
+    assert f.update(0.01, g, a, m) == 4  # backward
+    assert f.update(0.03, g, (float('inf'), 0.0, 0.0), m) == 0 and f.n_no_acc == 2
+    assert f.update(0.04, g, a, (0.0, 0.0, 0.0)) == 0 and f.n_no_mag == 1
+    assert f.update(30.0, g, a, m) == 2  # gap -> re-initialised
+    assert all(np.isfinite(f.quaternion))
+
+
+def test_replay_refuses_to_overwrite_and_errors_are_one_line(short_trial, tmp_path):
+    out = tmp_path / 'out'
+    out.mkdir()
+    env = dict(os.environ)
+    r = subprocess.run([sys.executable, '-m', 'ccf_ros.cli', 'replay', str(short_trial), '-o', str(out)],
+                       capture_output=True, text=True, env=env)
+    assert r.returncode == 2 and 'exists' in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    r = subprocess.run([sys.executable, '-m', 'ccf_ros.cli', 'replay', str(short_trial), '-o', str(tmp_path / 'x'),
+                        '--imu-topic', '/nope'], capture_output=True, text=True)
+    assert r.returncode == 2 and '/nope' in r.stderr and 'Traceback' not in r.stderr
+    assert not (tmp_path / 'x').exists()
+    r = subprocess.run([sys.executable, '-m', 'ccf_ros.cli', 'replay', str(short_trial), '-o', str(tmp_path / 'y'),
+                        '--param', 'tau_acc_s=-3'], capture_output=True, text=True)
+    assert r.returncode == 2 and 'tau_acc_s' in r.stderr and '-3' in r.stderr and 'Traceback' not in r.stderr
+
+
+def test_truncated_bag_fails_cleanly(short_trial, tmp_path):
+    import shutil
+
+    bad = tmp_path / 'truncated'
+    shutil.copytree(short_trial, bad)
+    mcap = next(bad.glob('*.mcap'))
+    data = mcap.read_bytes()
+    mcap.write_bytes(data[: len(data) // 2])
+    r = subprocess.run([sys.executable, '-m', 'ccf_ros.cli', 'replay', str(bad), '-o', str(tmp_path / 'o')],
+                       capture_output=True, text=True)
+    assert r.returncode != 0
+    assert 'Traceback' not in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert not (tmp_path / 'o').exists()
+    assert not any(p.name.startswith('.o.partial') for p in tmp_path.iterdir())
+
+
+def test_ctrl_c_leaves_no_half_bag(broad_trial, tmp_path):
+    out = tmp_path / 'out'
+    p = subprocess.Popen([sys.executable, '-m', 'ccf_ros.cli', 'replay', str(broad_trial), '-o', str(out)],
+                         stderr=subprocess.PIPE, text=True)
+    partial = tmp_path / '.out.partial'
+    deadline = time.time() + 60
+    while not partial.exists() and time.time() < deadline:
+        time.sleep(0.05)
+    time.sleep(0.5)
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 130, err
+    assert 'Traceback' not in err
+    assert not out.exists() and not partial.exists()
+
+
+def test_params_file_and_param_override(short_trial, tmp_path):
+    cfg = Path(__file__).resolve().parents[1] / 'config' / 'ccf.yaml'
+    a, b = tmp_path / 'a', tmp_path / 'b'
+    assert ccf(['replay', str(short_trial), '-o', str(a), '--params-file', str(cfg)]) == 0
+    assert ccf(['replay', str(short_trial), '-o', str(b), '--params-file', str(cfg),
+                '--param', 'formulation=euler']) == 0
+    _, qa = read_orientations(a, '/imu/data')
+    _, qb = read_orientations(b, '/imu/data')
+    imu = read_imu_arrays(short_trial)
+    ref = run_batch(make_filter(), imu.t_s, imu.gyr, imu.acc, imu.mag).quat
+    np.testing.assert_allclose(np.abs(np.sum(qa * ref, axis=1)), 1.0, atol=1e-12)  # yaml defaults == defaults
+    assert np.abs(np.sum(qb * ref, axis=1)).min() < 0.9999  # euler differs
+
+
+def test_sqlite3_and_ros1_inputs_give_the_same_result(short_trial, tmp_path):
+    from rosbags.rosbag1 import Writer as Writer1
+
+    from ccf_ros.offline.bagio import open_bag
+
+    db3 = copy_bag(short_trial, tmp_path / 'db3', stop_s=10.0, storage='sqlite3')
+    ros1 = tmp_path / 'in.bag'
+    from rosbags.typesys import Stores, get_typestore
+
+    ts1 = get_typestore(Stores.ROS1_NOETIC)
+    with open_bag(db3) as reader, Writer1(ros1) as w:
+        conns = {}
+        for c in reader.connections:
+            if c.topic in ('/imu/data_raw', '/imu/mag'):
+                conns[c.id] = w.add_connection(c.topic, c.msgtype, typestore=ts1)
+        Header1, Time1 = ts1.types['std_msgs/msg/Header'], ts1.types['builtin_interfaces/msg/Time']
+        for c, t, raw in reader.messages():
+            if c.id in conns:
+                msg = reader.deserialize(raw, c.msgtype)
+                st = msg.header.stamp
+                # ROS 1 headers carry a seq field: rebuild the header, keep every other field.
+                msg1 = dataclasses.replace(msg, header=Header1(seq=0, stamp=Time1(sec=st.sec, nanosec=st.nanosec),
+                                                               frame_id=msg.header.frame_id))
+                w.write(conns[c.id], t, ts1.serialize_ros1(msg1, c.msgtype))
+    outs = []
+    for i, src in enumerate((db3, ros1)):
+        out = tmp_path / f'out{i}'
+        assert ccf(['replay', str(src), '-o', str(out), '--storage', 'sqlite3', '--copy-input']) == 0
+        outs.append(read_orientations(out, '/imu/data'))
+    assert len(outs[0][0]) > 2000
+    np.testing.assert_array_equal(outs[0][0], outs[1][0])
+    np.testing.assert_array_equal(outs[0][1], outs[1][1])
+    with open_bag(tmp_path / 'out1') as r:
+        assert {'/imu/data_raw', '/imu/mag', '/imu/data', '/imu/gyro_bias'} <= {c.topic for c in r.connections}
+
+
+def test_eval_interpolates_a_slower_estimate(short_trial, tmp_path, capsys):
+    out = tmp_path / 'out'
+    assert ccf(['replay', str(short_trial), '-o', str(out)]) == 0
+    full = evaluate(load_aligned(out, '/ground_truth/pose', reference_bag=short_trial))
+    # Keep every 4th estimate: the evaluator must slerp between them, with nearly the same score.
+    sparse = tmp_path / 'sparse'
+    n = {'i': 0}
+
+    def every4(topic, msg, t):
+        if topic != '/imu/data':
+            return [(msg, t)]
+        n['i'] += 1
+        return [(msg, t)] if n['i'] % 4 == 0 else []
+
+    copy_bag(out, sparse, edit=every4)
+    js = tmp_path / 's.json'
+    png = tmp_path / 's.png'
+    assert ccf(['eval', str(sparse), '--reference', '/ground_truth/pose', '--reference-bag', str(short_trial),
+                '--json', str(js), '--plot', str(png)]) == 0
+    import json
+
+    s = json.loads(js.read_text())
+    assert s['n_missing'] < 10
+    assert s['total_rmse_deg'] == pytest.approx(full.total_rmse_deg, rel=0.1)
+    assert png.stat().st_size > 20000
+    assert 'BROAD' in capsys.readouterr().out
+
+
+def test_simulate_is_deterministic_for_a_seed(tmp_path):
+    a, b, c = tmp_path / 'a', tmp_path / 'b', tmp_path / 'c'
+    for p, seed in ((a, 4), (b, 4), (c, 5)):
+        assert ccf(['simulate', '-o', str(p), '--duration', '10', '--rate', '100', '--seed', str(seed)]) == 0
+    ia, ib, ic = (read_imu_arrays(p) for p in (a, b, c))
+    assert len(ia.t_s) == 1000
+    np.testing.assert_array_equal(ia.gyr, ib.gyr)
+    assert not np.array_equal(ia.gyr, ic.gyr)
