@@ -9,8 +9,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from .core.registry import all_param_names, defaults as filter_defaults, make_filter
 from .core.base import OrientationFilter
+from .core.registry import all_param_names, make_filter
+from .core.registry import defaults as filter_defaults
 
 #: Settings of the adapters (node and replay), with defaults.
 ADAPTER_DEFAULTS: dict[str, Any] = {
