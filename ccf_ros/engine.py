@@ -6,7 +6,7 @@ in arrival order, and convert the :class:`Output` back. Same input in the same o
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import NamedTuple
 
 from .core.base import ANSWERED_BELOW, OrientationFilter, Status
 from .core.pairing import MagPairer
@@ -14,8 +14,7 @@ from .core.quaternion import to_xyzw
 from .settings import AdapterSettings
 
 
-@dataclass(frozen=True)
-class Output:
+class Output(NamedTuple):
     """One answered IMU sample.
 
     Attributes:
@@ -40,6 +39,8 @@ class ImuEngine:
         self.pairer = MagPairer(timeout_s=self.settings.mag_timeout_s)
         self.n_in = 0
         self._t_const = 0.0
+        self._constant_dt = self.settings.constant_dt
+        self._stddev = self.settings.orientation_stddev
 
     def reset(self) -> None:
         """Fresh filter state and no magnetometer history (parameters kept)."""
@@ -57,23 +58,17 @@ class ImuEngine:
         """An IMU message: stamp (s), rate (rad/s), specific force (m/s²). None if the sample was skipped."""
         self.n_in += 1
         mag = self.pairer.get(t_s)
-        if self.settings.constant_dt > 0.0:
+        if self._constant_dt > 0.0:
             # Fixed sample period: a synthetic clock advanced per message replaces the header stamps.
-            self._t_const += self.settings.constant_dt
+            self._t_const += self._constant_dt
             t_s = self._t_const
         f = self.filter
         status = f.update(t_s, gyr, acc, mag)
         if status >= ANSWERED_BELOW:
             return None
-        sd = self.settings.orientation_stddev
+        sd = self._stddev
         vr, vp, vy = (sd * sd,) * 3 if sd > 0.0 else f.orientation_variance
-        q = f.quaternion
-        return Output(
-            orientation_xyzw=to_xyzw(q),
-            covariance=(vr, 0.0, 0.0, 0.0, vp, 0.0, 0.0, 0.0, vy),
-            bias=f.gyro_bias,
-            status=status,
-        )
+        return Output(to_xyzw(f.quaternion), (vr, 0.0, 0.0, 0.0, vp, 0.0, 0.0, 0.0, vy), f.gyro_bias, status)
 
     def skipped_by_reason(self) -> dict[str, int]:
         """Counts of skipped samples by reason name (only non-zero ones)."""

@@ -80,11 +80,20 @@ class OrientationFilter(ABC):
 
     #: registry name, e.g. ``ccf``
     name = ''
+    # Slots: attribute access on the per-sample path is measurably faster than through __dict__.
+    __slots__ = (
+        'params', '_frame', '_identity_frame', '_use_mag', '_max_dt', '_t_last', 'initialized', '_q', 'counts',
+        'n_no_acc', 'n_no_mag',
+    )
     params: CommonParams
 
     def __init__(self, params: CommonParams) -> None:
         self.params = params
         self._frame = WORLD_FRAMES[params.world_frame]
+        self._identity_frame = params.world_frame == 'enu'
+        # Cached for the per-sample path (attribute chains cost as much as arithmetic in CPython).
+        self._use_mag = params.use_mag
+        self._max_dt = params.max_dt_s
         self.reset()
 
     def reset(self) -> None:
@@ -158,7 +167,7 @@ class OrientationFilter(ABC):
         if not (acc_n2 > 1e-12 and acc_n2 - acc_n2 == 0.0):
             acc_n2 = 0.0
             self.n_no_acc += 1
-        if mag is not None and self.params.use_mag:
+        if mag is not None and self._use_mag:
             mx, my, mz = mag
             mag_n2 = mx * mx + my * my + mz * mz
             if not (mag_n2 > 1e-30 and mag_n2 - mag_n2 == 0.0):
@@ -166,7 +175,7 @@ class OrientationFilter(ABC):
                 self.n_no_mag += 1
         else:
             mx = my = mz = mag_n2 = 0.0
-        if self.initialized and dt <= self.params.max_dt_s:
+        if dt <= self._max_dt and self.initialized:
             self._step(dt, gx, gy, gz, ax, ay, az, acc_n2, mx, my, mz, mag_n2)
             self.counts[0] += 1
             return 0
@@ -186,10 +195,10 @@ class OrientationFilter(ABC):
     @property
     def quaternion(self) -> tuple[float, float, float, float]:
         """Body->world orientation ``(w, x, y, z)`` in ``params.world_frame``."""
+        if self._identity_frame:
+            return self._q
         pw, px, py, pz = self._frame
         qw, qx, qy, qz = self._q
-        if px == 0.0 and py == 0.0 and pz == 0.0:
-            return self._q
         return (
             pw * qw - px * qx - py * qy - pz * qz,
             pw * qx + px * qw + py * qz - pz * qy,

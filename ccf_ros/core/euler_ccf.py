@@ -96,6 +96,7 @@ class EulerCcf(OrientationFilter):
     """The paper's CCF per Euler axis (see module docstring). State: angles, own integrator, integral term."""
 
     name = 'ccf_euler'
+    __slots__ = ('_i', '_x', '_xg')
     params: EulerCcfParams
 
     def __init__(self, params: EulerCcfParams | None = None) -> None:

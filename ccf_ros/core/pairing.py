@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections import deque
 
 
 class MagPairer:
@@ -30,7 +31,7 @@ class MagPairer:
         """Forget all magnetometer samples."""
         self._t = -math.inf
         self._m: tuple[float, float, float] | None = None
-        self._pending: list[tuple[float, tuple[float, float, float]]] = []
+        self._pending: deque[tuple[float, tuple[float, float, float]]] = deque(maxlen=256)
 
     def add(self, t_s: float, mag: tuple[float, float, float]) -> None:
         """Record a magnetometer sample at ``t_s`` (s)."""
@@ -42,14 +43,11 @@ class MagPairer:
         pending = self._pending
         if pending:
             limit = t_s + self.tolerance_s
-            keep = []
-            for tm, m in pending:
-                if tm <= limit:
-                    if tm >= self._t:
-                        self._t, self._m = tm, m
-                else:
-                    keep.append((tm, m))
-            self._pending = keep[-64:]
+            # Arrival order is (nearly) stamp order: take samples from the front while they are due.
+            while pending and pending[0][0] <= limit:
+                tm, m = pending.popleft()
+                if tm >= self._t:
+                    self._t, self._m = tm, m
         if self._m is None or t_s - self._t > self.timeout_s:
             return None
         return self._m

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from ..engine import ImuEngine
-from .bagio import BagError, connections_for, open_bag, stamp_s, typestore
+from .bagio import BagError, connections_for, open_bag, typestore
 
 
 @dataclass
@@ -77,9 +77,6 @@ def replay(
         shutil.rmtree(tmp) if tmp.is_dir() else tmp.unlink()
     ts = typestore()
     Imu = ts.types['sensor_msgs/msg/Imu']
-    Header = ts.types['std_msgs/msg/Header']
-    Time = ts.types['builtin_interfaces/msg/Time']
-    Quaternion = ts.types['geometry_msgs/msg/Quaternion']
     Vector3 = ts.types['geometry_msgs/msg/Vector3']
     Vector3Stamped = ts.types['geometry_msgs/msg/Vector3Stamped']
     serialize = ts.serialize_cdr
@@ -115,49 +112,67 @@ def replay(
                 imu_ids = {c.id for c in imu_conns}
                 mag_ids = {c.id for c in mag_conns}
                 on_imu = engine.on_imu
+                # Serialized right away, so one buffer and one bias message serve every sample.
+                cov_buf = np.zeros(9)
+                bias_vec = Vector3(x=0.0, y=0.0, z=0.0)
+                bias_msg = Vector3Stamped(header=None, vector=bias_vec)
+                imu_type, bias_type = Imu.__msgtype__, Vector3Stamped.__msgtype__
+                deserialize = reader.deserialize
+                write = writer.write
+                on_mag = engine.on_mag
+                n_seen = 0
+                # Messages are handled in blocks: deserialize a block, filter it, serialize and write it. The filter
+                # sees the same calls in the same order as message by message, but runs in a tight loop.
+                block: list[tuple[int, int, Any]] = []
+
+                def flush() -> None:
+                    nonlocal n_seen
+                    outs = []
+                    for kind, _, msg in block:
+                        if kind == 0:
+                            h = msg.header
+                            g = msg.angular_velocity
+                            a = msg.linear_acceleration
+                            outs.append(on_imu(h.stamp.sec + h.stamp.nanosec * 1e-9, (g.x, g.y, g.z), (a.x, a.y, a.z)))
+                        elif kind == 1:
+                            h = msg.header
+                            f = msg.magnetic_field
+                            on_mag(h.stamp.sec + h.stamp.nanosec * 1e-9, (f.x, f.y, f.z))
+                    n_imu = len(outs)
+                    it = iter(outs)
+                    for kind, t_rec, msg in block:
+                        if kind == 0:
+                            out = next(it)
+                            if out is None:
+                                continue
+                            # Reuse the deserialized message: same header and fields, orientation filled in.
+                            o = msg.orientation
+                            o.x, o.y, o.z, o.w = out.orientation_xyzw
+                            cov_buf[:] = out.covariance
+                            msg.orientation_covariance = cov_buf
+                            bias_vec.x, bias_vec.y, bias_vec.z = out.bias
+                            bias_msg.header = msg.header
+                            write(w_imu, t_rec, serialize(msg, imu_type))
+                            write(w_bias, t_rec, serialize(bias_msg, bias_type))
+                            summary.n_out += 1
+                        elif kind == 2:
+                            write(msg[0], t_rec, msg[1])
+                    block.clear()
+                    n_seen += n_imu
+                    bar.update(n_imu)
+
                 try:
                     for conn, t_rec, raw in reader.messages(connections=conns):
                         cid = conn.id
                         if cid in w_copy:
-                            data = ts.ros1_to_cdr(raw, conn.msgtype) if is_ros1 else raw
-                            writer.write(w_copy[cid], t_rec, data)
+                            block.append((2, t_rec, (w_copy[cid], ts.ros1_to_cdr(raw, conn.msgtype) if is_ros1 else raw)))
                         if cid in imu_ids:
-                            msg = reader.deserialize(raw, conn.msgtype)
-                            h = msg.header
-                            g = msg.angular_velocity
-                            a = msg.linear_acceleration
-                            out = on_imu(stamp_s(h), (g.x, g.y, g.z), (a.x, a.y, a.z))
-                            bar.update(1)
-                            if out is None:
-                                continue
-                            header = Header(stamp=Time(sec=h.stamp.sec, nanosec=h.stamp.nanosec), frame_id=h.frame_id)
-                            x, y, z, w = out.orientation_xyzw
-                            imu = Imu(
-                                header=header,
-                                orientation=Quaternion(x=x, y=y, z=z, w=w),
-                                orientation_covariance=np.array(out.covariance, dtype=np.float64),
-                                angular_velocity=Vector3(x=g.x, y=g.y, z=g.z),
-                                angular_velocity_covariance=np.asarray(msg.angular_velocity_covariance, dtype=np.float64),
-                                linear_acceleration=Vector3(x=a.x, y=a.y, z=a.z),
-                                linear_acceleration_covariance=np.asarray(
-                                    msg.linear_acceleration_covariance, dtype=np.float64
-                                ),
-                            )
-                            bx, by, bz = out.bias
-                            writer.write(w_imu, t_rec, serialize(imu, Imu.__msgtype__))
-                            writer.write(
-                                w_bias,
-                                t_rec,
-                                serialize(
-                                    Vector3Stamped(header=header, vector=Vector3(x=bx, y=by, z=bz)),
-                                    Vector3Stamped.__msgtype__,
-                                ),
-                            )
-                            summary.n_out += 1
+                            block.append((0, t_rec, deserialize(raw, conn.msgtype)))
                         elif cid in mag_ids:
-                            msg = reader.deserialize(raw, conn.msgtype)
-                            f = msg.magnetic_field
-                            engine.on_mag(stamp_s(msg.header), (f.x, f.y, f.z))
+                            block.append((1, t_rec, deserialize(raw, conn.msgtype)))
+                        if len(block) >= 2048:
+                            flush()
+                    flush()
                 except BagError:
                     raise
                 except Exception as err:
