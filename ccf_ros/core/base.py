@@ -88,13 +88,27 @@ class OrientationFilter(ABC):
     params: CommonParams
 
     def __init__(self, params: CommonParams) -> None:
+        self._apply_params(params)
+        self.reset()
+
+    def _apply_params(self, params: CommonParams) -> None:
         self.params = params
         self._frame = WORLD_FRAMES[params.world_frame]
         self._identity_frame = params.world_frame == 'enu'
         # Cached for the per-sample path (attribute chains cost as much as arithmetic in CPython).
         self._use_mag = params.use_mag
         self._max_dt = params.max_dt_s
-        self.reset()
+
+    def set_params(self, params: CommonParams) -> None:
+        """Switch to new parameters of the same filter *without* resetting the estimate (live gain changes)."""
+        if type(params) is not type(self.params):
+            raise ValueError(f'{type(self).__name__} takes {type(self.params).__name__}, got {type(params).__name__}')
+        self._apply_params(params)
+        self._params_changed()
+
+    def _params_changed(self) -> None:
+        """Re-derive coefficients after :meth:`set_params`; state is kept."""
+        return None
 
     def reset(self) -> None:
         """Forget everything learnt: equivalent to a fresh instance with the same parameters."""

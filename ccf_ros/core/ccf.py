@@ -146,7 +146,7 @@ class QuaternionCcf(OrientationFilter):
     name = 'ccf'
     __slots__ = (
         '_alp', '_b', '_c', '_glp', '_inv_g', '_mag_bounds', '_mag_candidate', '_mag_disturbed_s', '_mag_have_ref',
-        '_rest_s', '_var_head', '_var_incl', 'at_rest', 'mag_disturbed',
+        '_rest_s', '_var_head', '_var_incl', 'at_rest', 'mag_disturbed', '_mag_ref',
     )
     params: CcfParams
 
@@ -188,10 +188,17 @@ class QuaternionCcf(OrientationFilter):
 
     def _set_mag_reference(self, norm: float, sin_dip: float) -> None:
         """Accept a field of ``norm`` (sensor unit) and dip ``asin(sin_dip)`` as undisturbed."""
+        self._mag_ref = (norm, sin_dip)
         self._mag_bounds = self._bounds(norm, sin_dip)
         self._mag_candidate = self._mag_bounds
         self._mag_have_ref = True
         self._mag_disturbed_s = 0.0
+
+    def _params_changed(self) -> None:
+        self._c = _Coefficients.of(self.params, 0.0)
+        if self._mag_have_ref:
+            self._mag_bounds = self._bounds(*self._mag_ref)
+            self._mag_candidate = self._mag_bounds
 
     def _init(self, ax: float, ay: float, az: float, mx: float, my: float, mz: float, mag_ok: bool) -> None:
         q = quat_from_acc_mag((ax, ay, az), (mx, my, mz) if mag_ok else None)

@@ -188,7 +188,7 @@ def replay(
         raise
     summary.n_in = engine.n_in
     summary.skipped = engine.skipped_by_reason()
-    summary.n_no_acc = engine.filter.n_no_acc
-    summary.n_no_mag = engine.filter.n_no_mag
+    summary.n_no_acc = engine.n_no_acc
+    summary.n_no_mag = engine.n_no_mag
     summary.wall_s = time.perf_counter() - t0
     return summary
