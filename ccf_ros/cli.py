@@ -1,6 +1,6 @@
 """``ccf``: offline tools on recorded bags, no ROS install needed.
 
-Subcommands: replay, eval, simulate, demo. Errors are one line on stderr and exit code 2; Ctrl-C exits 130.
+Subcommands: replay, eval, simulate, play, demo. Errors are one line on stderr and exit code 2; Ctrl-C exits 130.
 """
 
 from __future__ import annotations
@@ -86,10 +86,37 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_play(args: argparse.Namespace) -> int:
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+    from tqdm import tqdm
+
+    from .offline.play import load_messages, play
+
+    topics = [t for t in (args.topics or '').split(',') if t] or None
+    types, messages = load_messages(args.bag, topics)
+    print(f'playing {len(messages)} messages on {len(types)} topics at {args.rate:g}x' + (' (loop)' if args.loop else ''))
+    rclpy.init()
+    node = rclpy.create_node('ccf_play')
+    bar = tqdm(total=None if args.loop else len(messages), unit='msg', disable=None, mininterval=0.5)
+    try:
+        n = play(node, types, messages, rate=args.rate, loop=args.loop, clock=args.clock,
+                 should_stop=lambda: not rclpy.ok(), progress=bar.update)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        n = bar.n
+    finally:
+        bar.close()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    print(f'published {n} messages')
+    return 0
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
     from .offline.demo import run_demo
 
-    return run_demo(Path(args.output_dir), duration_s=args.duration, seed=args.seed)
+    return run_demo(Path(args.output_dir), duration_s=args.duration, seed=args.seed, live=not args.offline_only,
+                    live_rate=args.live_rate)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -131,10 +158,20 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap')
     s.set_defaults(func=cmd_simulate)
 
+    pl = sub.add_parser('play', help='publish a bag over DDS at recorded timing (needs the ROS 2 wheels)')
+    pl.add_argument('bag')
+    pl.add_argument('--rate', type=float, default=1.0, help='speed factor (default 1.0)')
+    pl.add_argument('--loop', action='store_true', help='start over at the end (the node resets on the jump back)')
+    pl.add_argument('--topics', help='comma-separated topics to play (default all)')
+    pl.add_argument('--clock', action='store_true', help='also publish /clock from the recording times')
+    pl.set_defaults(func=cmd_play)
+
     d = sub.add_parser('demo', help='simulate, filter, evaluate and plot: the main job on built-in data')
     d.add_argument('--output-dir', default=str(Path(tempfile.gettempdir()) / 'ccf_demo'))
     d.add_argument('--duration', type=float, default=60.0)
     d.add_argument('--seed', type=int, default=1)
+    d.add_argument('--offline-only', action='store_true', help='skip the live ccf_node run')
+    d.add_argument('--live-rate', type=float, default=4.0, help='playback speed into the live node (default 4x)')
     d.set_defaults(func=cmd_demo)
     return p
 
