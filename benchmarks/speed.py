@@ -50,7 +50,7 @@ def main() -> None:
     tmp = Path(tempfile.mkdtemp())
     bare, rep = [], []
     try:
-        for i in range(3):  # interleaved, so both see the same machine load
+        for i in range(5):  # interleaved, so both see the same machine load
             t0 = time.perf_counter()
             n = bare_copy(bag, tmp / f'bare{i}')
             bare.append(time.perf_counter() - t0)
@@ -60,7 +60,7 @@ def main() -> None:
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     print(f'{bag.name}: {n} IMU samples')
-    print(f'bare read/deserialize/serialize/write: {min(bare):.2f} s (best of 3)   replay: {min(rep):.2f} s')
+    print(f'bare read/deserialize/serialize/write: {min(bare):.2f} s (best of 5)   replay: {min(rep):.2f} s')
     print(f'replay / bare = {min(rep) / min(bare):.3f}   (target <= 1.25)')
 
     imu = read_imu_arrays(bag)

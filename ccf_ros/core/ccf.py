@@ -95,6 +95,8 @@ class _Coefficients:
     """Per-sample constants derived from :class:`CcfParams` for one sample period ``dt`` (s)."""
 
     dt: float
+    dt_lo: float
+    dt_hi: float
     k_acc: float
     k_mag: float
     k_bias: float
@@ -117,6 +119,10 @@ class _Coefficients:
         keep2 = (1.0 - k_rest) ** 2 if k_rest < 1.0 else 1e-300
         return cls(
             dt=dt,
+            # Float stamps near 1.7e9 s resolve 0.24 µs, so dt wobbles by ~1e-4 relative: gains are reused while dt
+            # stays within 0.1 % (a 0.1 % change of a blend gain is immaterial; integration uses the exact dt).
+            dt_lo=dt * (1.0 - 1e-3),
+            dt_hi=dt * (1.0 + 1e-3),
             k_acc=-math.expm1(-dt / p.tau_acc_s),
             k_mag=-math.expm1(-dt / p.tau_mag_s),
             k_bias=dt / (p.tau_bias_s * p.tau_bias_s),
@@ -230,7 +236,7 @@ class QuaternionCcf(OrientationFilter):
         mag_n2: float,
     ) -> None:
         c = self._c
-        if dt != c.dt:
+        if not c.dt_lo <= dt <= c.dt_hi:
             c = self._c = _Coefficients.of(self.params, dt)
         qw, qx, qy, qz = self._q
         bx, by, bz = self._b
