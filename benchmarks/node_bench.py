@@ -26,7 +26,6 @@ os.environ['ROS_DOMAIN_ID'] = os.environ['CCF_BENCH_DOMAIN_ID']
 
 import numpy as np  # noqa: E402
 import rclpy  # noqa: E402
-from geometry_msgs.msg import Vector3Stamped  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data  # noqa: E402
 from sensor_msgs.msg import Imu, MagneticField  # noqa: E402
@@ -43,17 +42,12 @@ def recorder(conn) -> None:
     rclpy.init(context=ctx)
     node = rclpy.create_node(f'bench_rec_{os.getpid()}', context=ctx)
     recv: dict[int, float] = {}
-    n_bias = [0]
-
     def on_out(msg: Imu) -> None:
         recv[msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec] = time.perf_counter()
 
-    def on_bias(_msg: Vector3Stamped) -> None:
-        n_bias[0] += 1
-
     qos = QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE)
+    # Only imu/data: the probe must do the same work for both nodes, or its own queue skews their latencies.
     node.create_subscription(Imu, 'imu/data', on_out, qos)
-    node.create_subscription(Vector3Stamped, 'imu/gyro_bias', on_bias, qos)
     ex = SingleThreadedExecutor(context=ctx)
     ex.add_node(node)
     conn.send('ready')
@@ -62,7 +56,7 @@ def recorder(conn) -> None:
         if conn.poll():
             cmd = conn.recv()
             if cmd == 'get':
-                conn.send((dict(recv), n_bias[0]))
+                conn.send(dict(recv))
             elif cmd == 'stop':
                 break
     ex.shutdown()
@@ -94,8 +88,7 @@ class Rig:
 
     def received(self) -> dict[int, float]:
         self.conn.send('get')
-        recv, _ = self.conn.recv()
-        return recv
+        return self.conn.recv()
 
     def send(self, rate_hz: float, duration_s: float, t_offset_ns: int) -> dict[int, float]:
         """Publish IMU + magnetometer pairs at ``rate_hz``; returns stamp -> send time."""

@@ -91,8 +91,10 @@ class CcfNode(Node):
         self.pub_bias = self.create_publisher(Vector3Stamped, 'imu/gyro_bias', 10)
         self.pub_rpy = self.create_publisher(Vector3Stamped, 'imu/rpy', 10)
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        self.sub_imu = self.create_subscription(Imu, 'imu/data_raw', self._on_imu, qos)
+        # The executor serves ready subscriptions in creation order: magnetometer first, so that a magnetometer
+        # sample and the IMU sample with the same stamp pair as they do in `ccf replay` (bag order).
         self.sub_mag = self.create_subscription(MagneticField, 'imu/mag', self._on_mag, qos)
+        self.sub_imu = self.create_subscription(Imu, 'imu/data_raw', self._on_imu, qos)
         self.srv_reset = self.create_service(Trigger, '~/reset', self._on_reset)
         self.timer_diag = self.create_timer(1.0, self._publish_diagnostics)
 
