@@ -198,3 +198,35 @@ def test_node_rejects_invalid_startup_parameters():
     r = subprocess.run(_node_command() + ['--ros-args', '-p', 'tau_acc_s:=0.0'], capture_output=True, text=True,
                        timeout=30)
     assert r.returncode != 0 and 'tau_acc_s' in (r.stdout + r.stderr)
+
+
+def test_live_node_matches_replay_on_fast_rotation(tmp_path):
+    """Fast rotation (up to ~800 deg/s) makes any IMU/magnetometer mis-pairing visible."""
+    from conftest import SHARED, copy_bag
+
+    from ccf_ros.offline.bagio import read_imu_arrays
+    from ccf_ros.offline.evaluate import align
+    from ccf_ros.offline.live import run_live
+
+    trial = SHARED / '07_undisturbed_fast_rotation_B'
+    if not trial.exists():
+        pytest.skip('shared BROAD data not found')
+    start = {}
+
+    def from_45s(topic, msg, t):
+        start.setdefault('t', t)
+        return [(msg, t)] if t - start['t'] > 45e9 else []
+
+    bag = copy_bag(trial, tmp_path / 'fast', stop_s=60.0, edit=from_45s)
+    res = run_live(bag, rate=2.0)
+    assert res.exit_code == 0 and len(res.t_s) == res.n_imu_sent > 4000
+    imu = read_imu_arrays(bag)
+    eng = ImuEngine(make_filter())
+    ref = []
+    for t, g, a, m in zip(imu.t_s.tolist(), imu.gyr.tolist(), imu.acc.tolist(), imu.mag.tolist(), strict=True):
+        eng.on_mag(t, tuple(m))
+        x, y, z, w = eng.on_imu(t, tuple(g), tuple(a)).orientation_xyzw
+        ref.append((w, x, y, z))
+    q = align(res.t_s, res.quat, imu.t_s, np.array(ref))
+    diff = 2 * np.arccos(np.clip(np.abs(np.sum(q * np.array(ref), axis=1)), 0, 1))
+    assert np.nanmax(diff) < 1e-3
