@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import os
 import random
 from pathlib import Path
@@ -50,3 +51,66 @@ def copy_bag(src: Path, dst: Path, *, stop_s: float | None = None, edit=None, st
 def short_trial(broad_trial: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The first 60 s of the real trial (rest, then motion)."""
     return copy_bag(broad_trial, tmp_path_factory.mktemp('short') / 'short', stop_s=60.0)
+
+
+def _stamp(msg, t_s):
+    msg.header.stamp.sec = int(t_s)
+    msg.header.stamp.nanosec = int(round((t_s - int(t_s)) * 1e9))
+
+
+@pytest.fixture(scope='module')
+def faulty_trial(short_trial: Path, tmp_path_factory) -> tuple[Path, dict[str, int]]:
+    """The real trial with NaN/Inf, zero vectors, duplicated and backward stamps and a 30 s gap injected."""
+    k = {'imu': 0, 'mag': 0}
+    injected = {'nan_gyro': 0, 'inf_gyro': 0, 'dup': 0, 'back': 0}
+    gap_s = 30.0
+
+    def edit(topic, msg, t):
+        if topic == '/imu/data_raw':
+            i = k['imu']
+            k['imu'] += 1
+            st = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+            if i > 10000:  # 30 s gap after ~35 s
+                _stamp(msg, st + gap_s)
+                t += int(gap_s * 1e9)
+            if i % 997 == 5:
+                msg.angular_velocity.x = float('nan')
+                injected['nan_gyro'] += 1
+            elif i % 1009 == 7:
+                msg.angular_velocity.z = float('inf')
+                injected['inf_gyro'] += 1
+            elif i % 499 == 3:
+                msg.linear_acceleration.x = msg.linear_acceleration.y = msg.linear_acceleration.z = 0.0
+            elif i % 503 == 4:
+                msg.linear_acceleration.y = float('nan')
+            if i % 701 == 11:
+                injected['dup'] += 1
+                return [(msg, t), (copy.deepcopy(msg), t)]
+            if i % 809 == 13:
+                injected['back'] += 1
+                back = copy.deepcopy(msg)
+                _stamp(back, st - 0.5)
+                return [(msg, t), (back, t)]
+            return [(msg, t)]
+        if topic == '/imu/mag':
+            j = k['mag']
+            k['mag'] += 1
+            if 13000 < j < 15860:  # 10 s of silent magnetometer
+                return []
+            if j > 10000:
+                st = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+                _stamp(msg, st + gap_s)
+                t += int(gap_s * 1e9)
+            if j % 401 == 9:
+                msg.magnetic_field.x = msg.magnetic_field.y = msg.magnetic_field.z = 0.0
+            elif j % 409 == 10:
+                msg.magnetic_field.z = float('-inf')
+            return [(msg, t)]
+        if topic == '/ground_truth/pose' and k['imu'] > 10000:
+            st = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+            _stamp(msg, st + gap_s)
+            return [(msg, t + int(gap_s * 1e9))]
+        return [(msg, t)]
+
+    path = copy_bag(short_trial, tmp_path_factory.mktemp('faulty') / 'faulty', edit=edit)
+    return path, injected

@@ -89,8 +89,12 @@ def run_live(bag: Path, rate: float = 4.0, timeout_s: float = 120.0) -> LiveResu
         time.sleep(0.5)
         play(node, {'/imu/data_raw': types['/imu/data_raw'], '/imu/mag': types['/imu/mag']}, messages, rate=rate,
              qos_depth=10000)
+        # Done when every sample is answered, or when nothing more arrives (skipped samples never will).
         deadline = time.time() + timeout_s
-        while len(received) < n_imu and time.time() < deadline:
+        last_n, quiet_since = -1, time.time()
+        while len(received) < n_imu and time.time() < deadline and time.time() - quiet_since < 2.0:
+            if len(received) != last_n:
+                last_n, quiet_since = len(received), time.time()
             time.sleep(0.05)
     finally:
         proc.send_signal(signal.SIGINT)
