@@ -10,7 +10,7 @@ import subprocess
 import sys
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -39,11 +39,17 @@ class LiveResult:
     quat: np.ndarray
     n_imu_sent: int
     exit_code: int | None
+    diagnostics: dict[str, str] = field(default_factory=dict)
 
 
-def run_live(bag: Path, rate: float = 4.0, timeout_s: float = 120.0) -> LiveResult:
-    """Start ``ccf_node``, play ``bag``'s IMU and magnetometer topics into it, record ``imu/data``, stop it."""
+def run_live(bag: Path, rate: float = 4.0, timeout_s: float = 120.0, node_qos: str = 'reliable') -> LiveResult:
+    """Start ``ccf_node``, play ``bag``'s IMU and magnetometer topics into it, record ``imu/data``, stop it.
+
+    ``node_qos`` is the node's input reliability: ``reliable`` (nothing lost) or ``best_effort`` (its default).
+    The last ``/diagnostics`` values of the node are returned too.
+    """
     import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import Imu
@@ -52,8 +58,8 @@ def run_live(bag: Path, rate: float = 4.0, timeout_s: float = 120.0) -> LiveResu
     types, messages = load_messages(bag, ['/imu/data_raw', '/imu/mag'])
     n_imu = sum(1 for _, topic, _ in messages if topic == '/imu/data_raw')
     proc = subprocess.Popen(
-        node_command() + ['--ros-args', '-p', 'qos_reliability:=reliable', '-p', 'qos_depth:=10000',
-                          '--log-level', 'warn'],
+        node_command() + ['--ros-args', '-p', f'qos_reliability:={node_qos}', '-p',
+                          f'qos_depth:={10000 if node_qos == "reliable" else 50}', '--log-level', 'warn'],
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
     )
     ctx = rclpy.Context()
@@ -66,6 +72,18 @@ def run_live(bag: Path, rate: float = 4.0, timeout_s: float = 120.0) -> LiveResu
         received.append((s.sec + s.nanosec * 1e-9, from_xyzw(o.x, o.y, o.z, o.w)))
 
     node.create_subscription(Imu, 'imu/data', on_out, QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE))
+    diagnostics: dict[str, str] = {}
+
+    def on_diag(msg: DiagnosticArray) -> None:
+        for st in msg.status:
+            if st.name.startswith('ccf_node'):
+                diagnostics.clear()
+                diagnostics.update({kv.key: kv.value for kv in st.values})
+                level = st.level
+                diagnostics['level'] = str(int.from_bytes(level, 'little') if isinstance(level, bytes) else int(level))
+                diagnostics['message'] = st.message
+
+    node.create_subscription(DiagnosticArray, '/diagnostics', on_diag, 10)
     ex = SingleThreadedExecutor(context=ctx)
     ex.add_node(node)
     spinning = threading.Event()
@@ -96,6 +114,7 @@ def run_live(bag: Path, rate: float = 4.0, timeout_s: float = 120.0) -> LiveResu
             if len(received) != last_n:
                 last_n, quiet_since = len(received), time.time()
             time.sleep(0.05)
+        time.sleep(1.2)  # one more diagnostics period
     finally:
         proc.send_signal(signal.SIGINT)
         try:
@@ -109,4 +128,4 @@ def run_live(bag: Path, rate: float = 4.0, timeout_s: float = 120.0) -> LiveResu
         rclpy.try_shutdown(context=ctx)
     t = np.array([r[0] for r in received], dtype=float)
     q = np.array([r[1] for r in received], dtype=float).reshape(-1, 4)
-    return LiveResult(t_s=t, quat=q, n_imu_sent=n_imu, exit_code=exit_code)
+    return LiveResult(t_s=t, quat=q, n_imu_sent=n_imu, exit_code=exit_code, diagnostics=dict(diagnostics))
