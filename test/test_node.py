@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import os
 import shutil
 import signal
@@ -243,3 +244,30 @@ def test_live_node_survives_faults_and_answers_every_valid_sample(faulty_trial):
     np.testing.assert_allclose(np.linalg.norm(res.quat, axis=1), 1.0, atol=1e-9)
     n_invalid = injected['nan_gyro'] + injected['inf_gyro'] + injected['dup'] + injected['back']
     assert len(res.t_s) == res.n_imu_sent - n_invalid
+
+
+def test_debug_topic_fixed_covariance_and_constant_dt(context, inputs):
+    node = CcfNode(context=context, parameter_overrides=[
+        Parameter('qos_reliability', value='reliable'), Parameter('qos_depth', value=5000),
+        Parameter('publish_debug_topics', value=True), Parameter('orientation_stddev', value=0.02),
+        Parameter('constant_dt', value=1 / 286.0)])
+    h = Harness(context, node)
+    rpy = []
+    h.io.create_subscription(Vector3Stamped, 'imu/rpy', rpy.append, RELIABLE)
+    try:
+        h.wait_connected()
+        # With constant_dt the header stamps are ignored: zeroed stamps must not stop the filter.
+        msgs = [(topic, copy.deepcopy(msg)) for topic, msg in inputs[:1000]]
+        for _, msg in msgs:
+            msg.header.stamp.sec = msg.header.stamp.nanosec = 0
+        h.feed(msgs, 500)
+        assert len(h.out) == 500
+        assert h.out[-1].orientation_covariance[0] == pytest.approx(0.02**2)
+        deadline = time.time() + 5
+        while len(rpy) < 500 and time.time() < deadline:
+            h.ex.spin_once(timeout_sec=0.05)
+        q = h.out[-1].orientation
+        roll = np.arctan2(2 * (q.w * q.x + q.y * q.z), 1 - 2 * (q.x**2 + q.y**2))
+        assert len(rpy) == 500 and rpy[-1].vector.x == pytest.approx(roll)
+    finally:
+        h.close()

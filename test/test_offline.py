@@ -221,3 +221,30 @@ def test_simulate_is_deterministic_for_a_seed(tmp_path):
     assert len(ia.t_s) == 1000
     np.testing.assert_array_equal(ia.gyr, ib.gyr)
     assert not np.array_equal(ia.gyr, ic.gyr)
+
+
+def test_engine_resets_on_a_sustained_backward_jump_but_skips_a_stray_stamp(short_trial):
+    from ccf_ros.engine import ImuEngine
+
+    imu = read_imu_arrays(short_trial)
+    n = 3000
+    eng = ImuEngine(make_filter())
+
+    def run(ts):
+        out = []
+        for t, g, a, m in zip(ts, imu.gyr[:n].tolist(), imu.acc[:n].tolist(), imu.mag[:n].tolist(), strict=True):
+            eng.on_mag(t, tuple(m))
+            o = eng.on_imu(t, tuple(g), tuple(a))
+            out.append(o.orientation_xyzw if o else None)
+        return out
+
+    first = run(imu.t_s[:n].tolist())
+    assert eng.on_imu(imu.t_s[0], (0.0, 0.0, 0.0), (0.0, 0.0, 9.81)) is None  # one stray old stamp: skipped
+    # A bag loop: the stray stamp and the loop's first sample are skipped, the third far-back stamp in a row resets.
+    again = run(imu.t_s[:n].tolist())
+    assert eng.n_resets_jump == 1
+    assert [a is None for a in again[:3]] == [True, False, False]
+    assert eng.skipped_by_reason() == {'skipped_stamp': 2}
+    # after the reset the filter re-initialised: orientations close to the first pass after convergence
+    a, b = np.array(first[-100:]), np.array(again[-100:])
+    assert np.max(np.abs(np.abs(np.sum(a * b, axis=1)) - 1.0)) < 1e-4

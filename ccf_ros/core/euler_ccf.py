@@ -41,7 +41,7 @@ def _triple(name: str, value: float | Sequence[float]) -> tuple[float, float, fl
         raise ValueError(f'{name} must be a number or 3 numbers (roll, pitch, yaw), got {value!r}') from None
     if len(vals) != 3:
         raise ValueError(f'{name} must be a number or 3 numbers (roll, pitch, yaw), got {value!r}')
-    return vals  # type: ignore[return-value]
+    return vals
 
 
 @dataclass(frozen=True)

@@ -58,9 +58,9 @@ def quat_conj(q: ArrayLike) -> FloatArray:
 
 def quat_normalize(q: ArrayLike) -> FloatArray:
     """Unit quaternion with non-negative ``w`` (one representative of ``±q``)."""
-    q = np.asarray(q, dtype=float)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    return np.where(q[..., :1] < 0.0, -q, q)
+    a = np.asarray(q, dtype=float)
+    u = a / np.linalg.norm(a, axis=-1, keepdims=True)
+    return np.where(u[..., :1] < 0.0, -u, u)
 
 
 def quat_rotate(q: ArrayLike, v: ArrayLike) -> FloatArray:

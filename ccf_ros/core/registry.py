@@ -87,7 +87,7 @@ def make_filter(settings: Mapping[str, Any] | None = None, *, strict: bool = Tru
                 raise ValueError(f'parameter {name!r} does not apply to filter={kind} formulation={formulation}')
             continue
         kwargs[name] = _coerce(name, value, fields[name].default)
-    return filter_cls(params_cls(**kwargs))  # type: ignore[call-arg]
+    return filter_cls(params_cls(**kwargs))
 
 
 def defaults() -> dict[str, Any]:

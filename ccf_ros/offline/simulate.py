@@ -148,7 +148,7 @@ def write_bag(data: SimData, path: str | Path, *, overwrite: bool = False, stora
                                              angular_velocity_covariance=cov0,
                                              linear_acceleration=Vector3(x=a[0], y=a[1], z=a[2]),
                                              linear_acceleration_covariance=cov0), Imu.__msgtype__))
-                x, y, z, ww = to_xyzw(tuple(qt[k]))  # type: ignore[arg-type]
+                x, y, z, ww = to_xyzw(tuple(qt[k]))
                 gt_hdr = Header(stamp=hdr.stamp, frame_id='world')
                 w.write(c_gt, t_ns, ser(PoseStamped(header=gt_hdr, pose=Pose(position=Point(x=0.0, y=0.0, z=0.0),
                                                                             orientation=Quaternion(x=x, y=y, z=z, w=ww))),
