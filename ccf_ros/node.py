@@ -43,6 +43,7 @@ _RANGES: dict[str, tuple[float, float]] = {
     'mag_dip_tol_rad': (0.0, math.pi),
     'constant_dt': (0.0, 10.0),
     'orientation_stddev': (0.0, math.pi),
+    'gyro_bias_rate_hz': (0.0, 100000.0),
 }
 
 
@@ -102,6 +103,11 @@ class CcfNode(Node):
         self._rpy_msg = Vector3Stamped()
         self._arrivals: deque[float] = deque(maxlen=2048)
         self._last_stamp = -math.inf
+        self._last_bias_t = -math.inf
+        self._last_mag_t = -math.inf
+        self._last_imu_t = math.nan
+        self._held: deque[tuple[float, Imu, float]] = deque()
+        self.timer_hold = self.create_timer(self.HOLD_S, self._flush_held)
         self._period_s = 0.0
         self._n_gaps_lost = 0
         self._last_warn = 0.0
@@ -145,16 +151,46 @@ class CcfNode(Node):
         self.get_logger().info(f'parameters applied: {changed}')
 
     # --- data ---------------------------------------------------------------------------------------------------
+    # IMU and magnetometer come on two topics, and DDS does not order delivery across topics. When the
+    # magnetometer carries the IMU's stamps (a 9-axis driver), IMU samples whose magnetometer sample has not
+    # arrived yet are held, in order, until it does or HOLD_S pass: pairing then matches `ccf replay` (bag order)
+    # instead of using an older magnetometer sample. Nothing is held for a magnetometer on its own clock.
+    HOLD_S = 0.02
+
     def _on_mag(self, msg: MagneticField) -> None:
         s = msg.header.stamp
+        t = s.sec + s.nanosec * 1e-9
         f = msg.magnetic_field
-        self.engine.on_mag(s.sec + s.nanosec * 1e-9, (f.x, f.y, f.z))
+        self.engine.on_mag(t, (f.x, f.y, f.z))
         self._last_mag_wall = time.monotonic()
+        if t > self._last_mag_t:
+            self._last_mag_t = t
+        held = self._held
+        while held and held[0][0] <= t:
+            t_imu, imu, _ = held.popleft()
+            self._process_imu(t_imu, imu)
 
     def _on_imu(self, msg: Imu) -> None:
         s = msg.header.stamp
         t = s.sec + s.nanosec * 1e-9
         self._arrivals.append(time.monotonic())
+        # Same-stamp magnetometer seen for the previous sample: this one's is expected too.
+        synced = self._last_mag_t == self._last_imu_t
+        self._last_imu_t = t
+        if self._held or (synced and self._last_mag_t < t and self._settings['use_mag']):
+            self._held.append((t, msg, time.monotonic()))
+            return
+        self._process_imu(t, msg)
+
+    def _flush_held(self) -> None:
+        """Timer: release samples held longer than HOLD_S (their magnetometer sample is lost or late)."""
+        held = self._held
+        now = time.monotonic()
+        while held and now - held[0][2] >= self.HOLD_S:
+            t_imu, imu, _ = held.popleft()
+            self._process_imu(t_imu, imu)
+
+    def _process_imu(self, t: float, msg: Imu) -> None:
         self._track_gaps(t)
         g = msg.angular_velocity
         a = msg.linear_acceleration
@@ -166,10 +202,13 @@ class CcfNode(Node):
         o.x, o.y, o.z, o.w = out.orientation_xyzw
         msg.orientation_covariance = list(out.covariance)
         self.pub_imu.publish(msg)
-        b = self._bias_msg
-        b.header = msg.header
-        b.vector.x, b.vector.y, b.vector.z = out.bias
-        self.pub_bias.publish(b)
+        rate = self._settings['gyro_bias_rate_hz']
+        if rate <= 0.0 or t - self._last_bias_t >= 1.0 / rate or t < self._last_bias_t:
+            self._last_bias_t = t
+            b = self._bias_msg
+            b.header = msg.header
+            b.vector.x, b.vector.y, b.vector.z = out.bias
+            self.pub_bias.publish(b)
         if self._settings['publish_debug_topics']:
             x, y, z, w = out.orientation_xyzw
             r = self._rpy_msg
@@ -197,6 +236,7 @@ class CcfNode(Node):
             self.get_logger().warning(text)
 
     def _on_reset(self, _req: Trigger.Request, resp: Trigger.Response) -> Trigger.Response:
+        self._held.clear()
         self.engine.reset()
         resp.success = True
         resp.message = 'filter reset; re-initialising from the next sample with a valid accelerometer'
@@ -253,9 +293,9 @@ class CcfNode(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Entry point of ``ccf_node`` / ``ros2 run ccf_ros ccf_node``."""
-    rclpy.init(args=args)
     node = None
     try:
+        rclpy.init(args=args)
         node = CcfNode()
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):

@@ -19,6 +19,7 @@ ADAPTER_DEFAULTS: dict[str, Any] = {
     'constant_dt': 0.0,
     'orientation_stddev': 0.0,
     'publish_debug_topics': False,
+    'gyro_bias_rate_hz': 50.0,
     'qos_reliability': 'best_effort',
     'qos_depth': 50,
 }
@@ -50,6 +51,7 @@ DESCRIPTIONS: dict[str, str] = {
     'constant_dt': 'fixed sample period (s) instead of header stamps; 0 = use header stamps',
     'orientation_stddev': 'fixed orientation std (rad) for the covariance; 0 = the filter\'s own estimate',
     'publish_debug_topics': 'node: also publish imu/rpy (roll, pitch, yaw in rad)',
+    'gyro_bias_rate_hz': 'node: highest rate of imu/gyro_bias, Hz (the bias changes over seconds); 0 = every sample',
     'qos_reliability': 'node: input QoS reliability, best_effort (sensor data) or reliable',
     'qos_depth': 'node: input QoS queue depth',
 }

@@ -63,13 +63,13 @@ class Harness:
             self.ex.spin_once(timeout_sec=0.05)
         assert self.pub_imu.get_subscription_count() > 0, 'node did not subscribe'
 
-    def feed(self, messages, n_expected, timeout=60.0):
+    def feed(self, messages, n_expected, timeout=60.0, n_bias=0):
         for i, (topic, msg) in enumerate(messages):
             (self.pub_mag if topic == '/imu/mag' else self.pub_imu).publish(msg)
             if i % 8 == 0:
                 self.ex.spin_once(timeout_sec=0)
         deadline = time.time() + timeout
-        while (len(self.out) < n_expected or len(self.bias) < n_expected) and time.time() < deadline:
+        while (len(self.out) < n_expected or len(self.bias) < n_bias) and time.time() < deadline:
             self.ex.spin_once(timeout_sec=0.05)
 
     def close(self):
@@ -104,12 +104,13 @@ def inputs(broad_trial):
 
 def test_node_publishes_exactly_what_replay_computes(context, inputs):
     node = CcfNode(context=context, parameter_overrides=[Parameter('qos_reliability', value='reliable'),
-                                                         Parameter('qos_depth', value=5000)])
+                                                         Parameter('qos_depth', value=5000),
+                                                         Parameter('gyro_bias_rate_hz', value=0.0)])
     h = Harness(context, node)
     try:
         h.wait_connected()
         n_imu = sum(1 for t, _ in inputs if t == '/imu/data_raw')
-        h.feed(inputs, n_imu)
+        h.feed(inputs, n_imu, n_bias=n_imu)
         assert len(h.out) == n_imu
         got = np.array([(m.orientation.x, m.orientation.y, m.orientation.z, m.orientation.w) for m in h.out])
         np.testing.assert_array_equal(got, _replay_reference(inputs))
@@ -151,7 +152,9 @@ def test_reset_service_and_diagnostics(context, inputs):
     h = Harness(context, node)
     try:
         h.wait_connected()
-        h.feed(inputs[:1000], 500)
+        h.feed(inputs[:1000], 500, n_bias=5)
+        # default gyro_bias_rate_hz 50: 500 samples at 286 Hz span 1.75 s -> about 88 bias messages, not 500
+        assert 80 <= len(h.bias) <= 90
         status = node.diagnostic_status()
         values = {kv.key: kv.value for kv in status.values}
         assert values['samples answered'] == str(len(h.out)) and float(values['input rate (Hz)']) > 0
