@@ -105,7 +105,9 @@ class CcfNode(Node):
         self._last_stamp = -math.inf
         self._last_bias_t = -math.inf
         self._last_mag_t = -math.inf
-        self._last_imu_t = math.nan
+        # Both -inf: the first IMU sample counts as "synced", so it waits (at most HOLD_S, once) for a magnetometer
+        # sample to initialise the heading from, as replay does when the magnetometer comes first in the bag.
+        self._last_imu_t = -math.inf
         self._held: deque[tuple[float, Imu, float]] = deque()
         self.timer_hold = self.create_timer(self.HOLD_S, self._flush_held)
         self._period_s = 0.0

@@ -13,6 +13,7 @@ import numpy as np
 
 from ..engine import ImuEngine
 from .bagio import BagError, connections_for, open_bag, typestore
+from .fastcdr import LITTLE_ENDIAN_CDR, patch_imu, read_imu, read_mag, vector3_stamped
 
 
 @dataclass
@@ -111,6 +112,8 @@ def replay(
                 )
                 imu_ids = {c.id for c in imu_conns}
                 mag_ids = {c.id for c in mag_conns}
+                imu_fast = {c.id for c in imu_conns if c.msgtype == 'sensor_msgs/msg/Imu'}
+                mag_fast = {c.id for c in mag_conns if c.msgtype == 'sensor_msgs/msg/MagneticField'}
                 on_imu = engine.on_imu
                 # Serialized right away, so one buffer and one bias message serve every sample.
                 cov_buf = np.zeros(9)
@@ -129,19 +132,35 @@ def replay(
                     nonlocal n_seen
                     outs = []
                     for kind, _, msg in block:
-                        if kind == 0:
+                        if kind == 3:
+                            t, off, g, a = read_imu(msg)
+                            out = on_imu(t, g, a)
+                            outs.append((out, off))
+                        elif kind == 4:
+                            t, f = read_mag(msg)
+                            on_mag(t, f)
+                        elif kind == 0:
                             h = msg.header
                             g = msg.angular_velocity
                             a = msg.linear_acceleration
-                            outs.append(on_imu(h.stamp.sec + h.stamp.nanosec * 1e-9, (g.x, g.y, g.z), (a.x, a.y, a.z)))
+                            outs.append(on_imu(h.stamp.sec + h.stamp.nanosec * 1e-9, (g.x, g.y, g.z), (a.x, a.y, a.z)))  # type: ignore[arg-type]
                         elif kind == 1:
                             h = msg.header
                             f = msg.magnetic_field
                             on_mag(h.stamp.sec + h.stamp.nanosec * 1e-9, (f.x, f.y, f.z))
                     n_imu = len(outs)
-                    it = iter(outs)
+                    it: Any = iter(outs)
                     for kind, t_rec, msg in block:
-                        if kind == 0:
+                        if kind == 3:
+                            out, off = next(it)
+                            if out is None:
+                                continue
+                            buf = bytearray(msg)
+                            patch_imu(buf, off, out.orientation_xyzw, out.covariance)
+                            write(w_imu, t_rec, memoryview(buf))
+                            write(w_bias, t_rec, vector3_stamped(msg, off, out.bias))
+                            summary.n_out += 1
+                        elif kind == 0:
                             out = next(it)
                             if out is None:
                                 continue
@@ -166,10 +185,12 @@ def replay(
                         cid = conn.id
                         if cid in w_copy:
                             block.append((2, t_rec, (w_copy[cid], ts.ros1_to_cdr(raw, conn.msgtype) if is_ros1 else raw)))
+                        # Little-endian CDR (rosbag2): read and patch the bytes; otherwise go through rosbags.
+                        fast = not is_ros1 and raw[:2] == LITTLE_ENDIAN_CDR
                         if cid in imu_ids:
-                            block.append((0, t_rec, deserialize(raw, conn.msgtype)))
+                            block.append((3, t_rec, raw) if fast and cid in imu_fast else (0, t_rec, deserialize(raw, conn.msgtype)))
                         elif cid in mag_ids:
-                            block.append((1, t_rec, deserialize(raw, conn.msgtype)))
+                            block.append((4, t_rec, raw) if fast and cid in mag_fast else (1, t_rec, deserialize(raw, conn.msgtype)))
                         if len(block) >= 2048:
                             flush()
                     flush()

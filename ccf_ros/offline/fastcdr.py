@@ -1,0 +1,53 @@
+"""Direct access to the few fields replay needs in little-endian CDR messages (rosbag2), skipping full
+deserialisation: an Imu is read and its orientation and covariance are patched in place; a Vector3Stamped is built.
+
+Layouts (offsets after the 4-byte encapsulation header, 8-byte fields aligned to 8 from there):
+``Header = int32 sec, uint32 nanosec, string frame_id (uint32 length incl. NUL, bytes)``, then the message's
+float64 fields. Anything else (ROS 1, big-endian) goes through rosbags.
+"""
+
+from __future__ import annotations
+
+import struct
+from typing import cast
+
+Vec3 = tuple[float, float, float]
+
+LITTLE_ENDIAN_CDR = b'\x00\x01'
+_HDR = struct.Struct('<iiI')  # sec, nanosec (as int; < 1e9 fits), frame_id length
+_F3 = struct.Struct('<3d')
+_F4 = struct.Struct('<4d')
+_F9 = struct.Struct('<9d')
+
+
+def _body(raw: bytes | bytearray | memoryview, pos: int = 4) -> tuple[int, int, int]:
+    """sec, nanosec and the offset (in ``raw``) of the first float64 field after the header."""
+    sec, nsec, n = _HDR.unpack_from(raw, pos)
+    end = pos + 12 + n - 4  # relative to the data start, then aligned to 8
+    off = (end + 7) & ~7
+    return sec, nsec, off + 4
+
+
+def read_imu(raw: bytes | bytearray | memoryview) -> tuple[float, int, Vec3, Vec3]:
+    """Stamp (s), offset of ``orientation``, angular velocity (rad/s), linear acceleration (m/s²) of an Imu."""
+    sec, nsec, off = _body(raw)
+    gyr = cast(Vec3, _F3.unpack_from(raw, off + 104))
+    acc = cast(Vec3, _F3.unpack_from(raw, off + 200))
+    return sec + nsec * 1e-9, off, gyr, acc
+
+
+def patch_imu(buf: bytearray, off: int, xyzw: tuple[float, float, float, float], cov: tuple[float, ...]) -> None:
+    """Write orientation (x, y, z, w) and orientation_covariance (9) into a serialized Imu at ``off``."""
+    _F4.pack_into(buf, off, *xyzw)
+    _F9.pack_into(buf, off + 32, *cov)
+
+
+def read_mag(raw: bytes | bytearray | memoryview) -> tuple[float, Vec3]:
+    """Stamp (s) and magnetic field of a serialized MagneticField."""
+    sec, nsec, off = _body(raw)
+    return sec + nsec * 1e-9, cast(Vec3, _F3.unpack_from(raw, off))
+
+
+def vector3_stamped(imu_raw: bytes | bytearray | memoryview, imu_off: int, v: Vec3) -> bytes:
+    """A serialized Vector3Stamped with the Imu's header (bytes up to ``imu_off``) and vector ``v``."""
+    return bytes(imu_raw[:imu_off]) + _F3.pack(*v)
