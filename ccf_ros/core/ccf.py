@@ -90,7 +90,7 @@ class CcfParams(CommonParams):
             raise ValueError(f'rest_bias must be a bool, got {self.rest_bias!r}')
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class _Coefficients:
     """Per-sample constants derived from :class:`CcfParams` for one sample period ``dt`` (s)."""
 
