@@ -26,7 +26,7 @@ ADAPTER_DEFAULTS: dict[str, Any] = {
 
 #: One line per setting, for config/ccf.yaml, the node's parameter descriptors and the README.
 DESCRIPTIONS: dict[str, str] = {
-    'filter': 'filter algorithm: ccf',
+    'filter': 'filter algorithm: ccf (default), or the baselines madgwick, mahony',
     'formulation': 'quaternion (default, any attitude) or euler (the paper\'s per-axis form, singular at +-90 deg pitch)',
     'max_dt_s': 'gap longer than this (s) re-initialises from accelerometer/magnetometer instead of integrating',
     'use_mag': 'use the magnetometer for heading (false: 6-D, heading drifts)',
@@ -47,6 +47,9 @@ DESCRIPTIONS: dict[str, str] = {
     'kp': 'euler: NCF proportional gain, 1/s (one value or [roll, pitch, yaw])',
     'ki': 'euler: NCF integral gain, 1/s^2 (one value or [roll, pitch, yaw])',
     'alpha': 'euler: LCF weight of the gyro path per sample, 0..1 (one value or [roll, pitch, yaw])',
+    'madgwick_beta': 'madgwick: gradient-descent gain, rad/s',
+    'mahony_kp': 'mahony: proportional gain, 1/s',
+    'mahony_ki': 'mahony: integral gain, 1/s^2',
     'mag_timeout_s': 'magnetometer samples older than this (s) are not paired with an IMU sample',
     'constant_dt': 'fixed sample period (s) instead of header stamps; 0 = use header stamps',
     'orientation_stddev': 'fixed orientation std (rad) for the covariance; 0 = the filter\'s own estimate',
@@ -102,3 +105,30 @@ def build(settings: Mapping[str, Any], *, strict: bool = True) -> tuple[Orientat
             except (TypeError, ValueError):
                 raise ValueError(f'{name} must be a number, got {adapter[name]!r}') from None
     return filt, AdapterSettings(**kw)
+
+
+def config_yaml() -> str:
+    """The text of ``config/ccf.yaml``: every setting with its default and description.
+
+    Regenerate with ``python -m ccf_ros.settings > config/ccf.yaml`` (a test checks the file matches).
+    """
+    lines = [
+        '# ccf_ros parameters: every parameter with its default. Used by',
+        '#   ccf_node --ros-args --params-file config/ccf.yaml',
+        '#   ccf replay IN -o OUT --params-file config/ccf.yaml',
+        'ccf_node:',
+        '  ros__parameters:',
+    ]
+    for name, value in all_defaults().items():
+        if isinstance(value, bool):
+            text = 'true' if value else 'false'
+        elif isinstance(value, float):
+            text = repr(round(value, 10))
+        else:
+            text = str(value)
+        lines.append(f'    {name}: {text}  # {DESCRIPTIONS[name]}')
+    return '\n'.join(lines) + '\n'
+
+
+if __name__ == '__main__':
+    print(config_yaml(), end='')

@@ -40,7 +40,8 @@ def sim():
     return generate(40.0, 200.0, seed=3)
 
 
-@pytest.mark.parametrize('settings', [{}, {'formulation': 'euler'}, {'use_mag': False}, {'world_frame': 'ned'}])
+@pytest.mark.parametrize('settings', [{}, {'formulation': 'euler'}, {'use_mag': False}, {'world_frame': 'ned'},
+                                      {'filter': 'madgwick'}, {'filter': 'mahony'}])
 def test_batch_equals_per_sample_updates(sim, settings):
     batch = run_batch(make_filter(settings), sim.t_s, sim.gyr, sim.acc, sim.mag)
     f = make_filter(settings)
@@ -163,3 +164,17 @@ def test_quaternion_ccf_estimates_a_constant_gyro_bias():
     err = np.degrees(np.abs(r.bias[-1] - d.bias[-1]))
     assert np.all(err < 0.15), err
     assert np.all(r.status[1:] == Status.UPDATED)
+
+
+def test_config_file_lists_every_parameter_with_its_default():
+    from ccf_ros.offline.params_file import load_params_file
+    from ccf_ros.settings import all_defaults
+
+    cfg = load_params_file(Path(__file__).resolve().parents[1] / 'config' / 'ccf.yaml')
+    defaults = all_defaults()
+    assert set(cfg) == set(defaults)
+    for name, value in defaults.items():
+        assert cfg[name] == pytest.approx(value, rel=1e-6) if isinstance(value, float) else cfg[name] == value, name
+    from ccf_ros.settings import config_yaml
+
+    assert (Path(__file__).resolve().parents[1] / 'config' / 'ccf.yaml').read_text() == config_yaml()

@@ -248,3 +248,17 @@ def test_engine_resets_on_a_sustained_backward_jump_but_skips_a_stray_stamp(shor
     # after the reset the filter re-initialised: orientations close to the first pass after convergence
     a, b = np.array(first[-100:]), np.array(again[-100:])
     assert np.max(np.abs(np.abs(np.sum(a * b, axis=1)) - 1.0)) < 1e-4
+
+
+@pytest.mark.parametrize(('name', 'published_deg'), [('madgwick', 1.67), ('mahony', 2.86)])
+def test_baselines_reproduce_broads_published_figures(broad_trial, name, published_deg):
+    """Independent check of the baselines and of the scoring: BROAD's own figures for trial 02 (shared README)."""
+    from ccf_ros.offline.bagio import read_bools
+
+    imu = read_imu_arrays(broad_trial)
+    t_ref, q_ref = read_orientations(broad_trial, '/ground_truth/pose')
+    t_m, moving = read_bools(broad_trial, '/ground_truth/moving')
+    assert np.array_equal(t_ref, imu.t_s)
+    mask = moving[np.clip(np.searchsorted(t_m, t_ref + 1e-6, side='right') - 1, 0, None)]
+    r = run_batch(make_filter({'filter': name}), imu.t_s, imu.gyr, imu.acc, imu.mag)
+    assert summarize(r.quat, q_ref, mask).total_rmse_deg == pytest.approx(published_deg, abs=0.02)

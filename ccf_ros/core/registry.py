@@ -7,6 +7,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from .base import CommonParams, OrientationFilter
+from .baselines import Madgwick, MadgwickParams, Mahony, MahonyParams
 from .ccf import CcfParams, QuaternionCcf
 from .euler_ccf import EulerCcf, EulerCcfParams
 
@@ -14,6 +15,9 @@ from .euler_ccf import EulerCcf, EulerCcfParams
 FILTERS: dict[tuple[str, str], tuple[type[CommonParams], type[OrientationFilter]]] = {
     ('ccf', 'quaternion'): (CcfParams, QuaternionCcf),
     ('ccf', 'euler'): (EulerCcfParams, EulerCcf),
+    # Baselines of the paper's comparison; `formulation` does not apply to them.
+    ('madgwick', 'quaternion'): (MadgwickParams, Madgwick),
+    ('mahony', 'quaternion'): (MahonyParams, Mahony),
 }
 
 #: Settings that select the filter rather than parametrise it.
