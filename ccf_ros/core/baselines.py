@@ -16,9 +16,8 @@ from .base import CommonParams, OrientationFilter, check_range
 from .quaternion import WORLD_FRAMES, quat_from_acc_mag, quat_mul
 
 _S = math.sqrt(0.5)
-# q_nwu = Q_NWU_FROM_ENU ⊗ q_enu and back.
+# q_nwu = Q_NWU_FROM_ENU ⊗ q_enu (its inverse, (cos 45°, 0, 0, sin 45°), is applied in _publish).
 _Q_NWU_FROM_ENU = WORLD_FRAMES['nwu']
-_Q_ENU_FROM_NWU = (_S, 0.0, 0.0, _S)
 
 
 @dataclass(frozen=True)
@@ -46,6 +45,22 @@ class MahonyParams(CommonParams):
         check_range('mahony_ki', self.mahony_ki, 0.0, 1e4)
 
 
+def _earth_field(
+    q0: float, q1: float, q2: float, q3: float, mx: float, my: float, mz: float, mag_n2: float
+) -> tuple[float, float, float, float, float]:
+    """Normalised field (body) and its earth-frame reference (north ``bx``, up ``bz``) for orientation ``q`` (NWU).
+
+    The field is rotated into the earth frame (q ⊗ m ⊗ q*) and its horizontal part folded onto north, as both
+    Madgwick and Mahony do to be insensitive to the declination.
+    """
+    n = 1.0 / math.sqrt(mag_n2)
+    mx, my, mz = mx * n, my * n, mz * n
+    hx = (1 - 2 * (q2 * q2 + q3 * q3)) * mx + 2 * (q1 * q2 - q0 * q3) * my + 2 * (q1 * q3 + q0 * q2) * mz
+    hy = 2 * (q1 * q2 + q0 * q3) * mx + (1 - 2 * (q1 * q1 + q3 * q3)) * my + 2 * (q2 * q3 - q0 * q1) * mz
+    bz = 2 * (q1 * q3 - q0 * q2) * mx + 2 * (q2 * q3 + q0 * q1) * my + (1 - 2 * (q1 * q1 + q2 * q2)) * mz
+    return mx, my, mz, math.sqrt(hx * hx + hy * hy), bz
+
+
 class _NwuFilter(OrientationFilter):
     """Shared state handling for filters written in the NWU frame (``self._qn``)."""
 
@@ -61,9 +76,9 @@ class _NwuFilter(OrientationFilter):
         self._publish()
 
     def _publish(self) -> None:
-        q = quat_mul(_Q_ENU_FROM_NWU, self._qn)
-        n = math.sqrt(float(q @ q))
-        self._q = (float(q[0]) / n, float(q[1]) / n, float(q[2]) / n, float(q[3]) / n)
+        # q_enu = (cos 45°, 0, 0, sin 45°) ⊗ q_nwu, written out: a product with a constant, no numpy per sample.
+        w, x, y, z = self._qn
+        self._q = (_S * (w - z), _S * (x - y), _S * (y + x), _S * (z + w))
 
     @property
     def orientation_variance(self) -> tuple[float, float, float]:
@@ -102,13 +117,7 @@ class Madgwick(_NwuFilter):
             s2 = -2.0 * q0 * f1 + 2.0 * q3 * f2 - 4.0 * q2 * f3
             s3 = 2.0 * q1 * f1 + 2.0 * q2 * f2
             if mag_n2:
-                n = 1.0 / math.sqrt(mag_n2)
-                mx, my, mz = mx * n, my * n, mz * n
-                # Field in the earth frame (q ⊗ m ⊗ q*), reduced to its north and up components.
-                hx = (1 - 2 * (q2 * q2 + q3 * q3)) * mx + 2 * (q1 * q2 - q0 * q3) * my + 2 * (q1 * q3 + q0 * q2) * mz
-                hy = 2 * (q1 * q2 + q0 * q3) * mx + (1 - 2 * (q1 * q1 + q3 * q3)) * my + 2 * (q2 * q3 - q0 * q1) * mz
-                bz = 2 * (q1 * q3 - q0 * q2) * mx + 2 * (q2 * q3 + q0 * q1) * my + (1 - 2 * (q1 * q1 + q2 * q2)) * mz
-                bx = math.sqrt(hx * hx + hy * hy)
+                mx, my, mz, bx, bz = _earth_field(q0, q1, q2, q3, mx, my, mz, mag_n2)
                 f4 = 2 * bx * (0.5 - q2 * q2 - q3 * q3) + 2 * bz * (q1 * q3 - q0 * q2) - mx
                 f5 = 2 * bx * (q1 * q2 - q0 * q3) + 2 * bz * (q0 * q1 + q2 * q3) - my
                 f6 = 2 * bx * (q0 * q2 + q1 * q3) + 2 * bz * (0.5 - q1 * q1 - q2 * q2) - mz
@@ -166,12 +175,7 @@ class Mahony(_NwuFilter):
             vz = q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3
             ex, ey, ez = ay * vz - az * vy, az * vx - ax * vz, ax * vy - ay * vx
             if mag_n2:
-                n = 1.0 / math.sqrt(mag_n2)
-                mx, my, mz = mx * n, my * n, mz * n
-                hx = (1 - 2 * (q2 * q2 + q3 * q3)) * mx + 2 * (q1 * q2 - q0 * q3) * my + 2 * (q1 * q3 + q0 * q2) * mz
-                hy = 2 * (q1 * q2 + q0 * q3) * mx + (1 - 2 * (q1 * q1 + q3 * q3)) * my + 2 * (q2 * q3 - q0 * q1) * mz
-                bz = 2 * (q1 * q3 - q0 * q2) * mx + 2 * (q2 * q3 + q0 * q1) * my + (1 - 2 * (q1 * q1 + q2 * q2)) * mz
-                bx = math.sqrt(hx * hx + hy * hy)
+                mx, my, mz, bx, bz = _earth_field(q0, q1, q2, q3, mx, my, mz, mag_n2)
                 # Expected field direction in the body frame: R^T (bx, 0, bz).
                 wx = bx * (1 - 2 * (q2 * q2 + q3 * q3)) + bz * 2 * (q1 * q3 - q0 * q2)
                 wy = bx * 2 * (q1 * q2 - q0 * q3) + bz * 2 * (q0 * q1 + q2 * q3)
