@@ -35,7 +35,7 @@ from .settings import DESCRIPTIONS, all_defaults, build
 #: Parameters that only make sense at start-up.
 READ_ONLY = {'qos_reliability', 'qos_depth'}
 #: Parameters whose value may be a number or a list of three (per axis).
-PER_AXIS = {'kp', 'ki', 'alpha'}
+PER_AXIS = {'kp', 'ki', 'alpha', 'lcf_alpha'}
 #: Upper bounds of positive real parameters (descriptors show them; the core validates precisely).
 _RANGES: dict[str, tuple[float, float]] = {
     'alpha': (0.0, 1.0),
@@ -51,6 +51,8 @@ def _descriptor(name: str, default: Any) -> ParameterDescriptor:
     d = ParameterDescriptor(description=DESCRIPTIONS.get(name, ''), read_only=name in READ_ONLY)
     if name in PER_AXIS:
         d.dynamic_typing = True
+    elif isinstance(default, tuple):
+        d.additional_constraints = f'{len(default)} numbers >= 0'
     elif isinstance(default, float):
         lo, hi = _RANGES.get(name, (0.0, 1e9))
         d.floating_point_range = [FloatingPointRange(from_value=lo, to_value=hi, step=0.0)]
@@ -71,7 +73,9 @@ class CcfNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('ccf_node', **kwargs)
         for name, default in all_defaults().items():
-            self.declare_parameter(name, default, _descriptor(name, default))
+            # Tuples (noise vectors) are declared as double arrays.
+            value = list(default) if isinstance(default, tuple) else default
+            self.declare_parameter(name, value, _descriptor(name, default))
         self._settings = {name: self.get_parameter(name).value for name in all_defaults()}
         # Invalid start-up values: say which and stop, rather than run with something else.
         filt, adapter = build(self._filter_settings(self._settings), strict=False)

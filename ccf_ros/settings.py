@@ -26,7 +26,7 @@ ADAPTER_DEFAULTS: dict[str, Any] = {
 
 #: One line per setting, for config/ccf.yaml, the node's parameter descriptors and the README.
 DESCRIPTIONS: dict[str, str] = {
-    'filter': 'filter algorithm: ccf (default), or the baselines madgwick, mahony',
+    'filter': 'filter algorithm: ccf (default), or the paper\'s baselines lcf, ncf, ekf, ckf (euler) and madgwick, mahony',
     'formulation': 'quaternion (default, any attitude) or euler (the paper\'s per-axis form, singular at +-90 deg pitch)',
     'max_dt_s': 'gap longer than this (s) re-initialises from accelerometer/magnetometer instead of integrating',
     'use_mag': 'use the magnetometer for heading (false: 6-D, heading drifts)',
@@ -47,6 +47,12 @@ DESCRIPTIONS: dict[str, str] = {
     'kp': 'euler: NCF proportional gain, 1/s (one value or [roll, pitch, yaw])',
     'ki': 'euler: NCF integral gain, 1/s^2 (one value or [roll, pitch, yaw])',
     'alpha': 'euler: LCF weight of the gyro path per sample, 0..1 (one value or [roll, pitch, yaw])',
+    'lcf_alpha': 'lcf: per-sample weight of the integrated gyro, 0..1 (one value or [roll, pitch, yaw])',
+    'ekf_q': 'ekf: process-noise density of [roll, pitch, yaw], rad^2/s',
+    'ekf_r': 'ekf: accelerometer/magnetometer angle variance [roll, pitch, yaw], rad^2',
+    'ckf_q': 'ckf: process-noise density of [roll, pitch, yaw error, x, y, z bias error], rad^2/s, rad^2/s^3',
+    'ckf_r': 'ckf: accelerometer/magnetometer angle variance [roll, pitch, yaw], rad^2',
+    'ckf_bias0_rad_s': 'ckf: initial gyro-bias standard deviation, rad/s',
     'madgwick_beta': 'madgwick: gradient-descent gain, rad/s',
     'mahony_kp': 'mahony: proportional gain, 1/s',
     'mahony_ki': 'mahony: integral gain, 1/s^2',
@@ -124,6 +130,8 @@ def config_yaml() -> str:
             text = 'true' if value else 'false'
         elif isinstance(value, float):
             text = repr(round(value, 10))
+        elif isinstance(value, tuple):
+            text = '[' + ', '.join(repr(round(float(v), 10)) for v in value) + ']'
         else:
             text = str(value)
         lines.append(f'    {name}: {text}  # {DESCRIPTIONS[name]}')

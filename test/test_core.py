@@ -174,7 +174,10 @@ def test_config_file_lists_every_parameter_with_its_default():
     defaults = all_defaults()
     assert set(cfg) == set(defaults)
     for name, value in defaults.items():
-        assert cfg[name] == pytest.approx(value, rel=1e-6) if isinstance(value, float) else cfg[name] == value, name
+        if isinstance(value, tuple):
+            assert tuple(cfg[name]) == pytest.approx(value, rel=1e-6), name
+        else:
+            assert cfg[name] == pytest.approx(value, rel=1e-6) if isinstance(value, float) else cfg[name] == value, name
     from ccf_ros.settings import config_yaml
 
     assert (Path(__file__).resolve().parents[1] / 'config' / 'ccf.yaml').read_text() == config_yaml()

@@ -79,9 +79,9 @@ class Harness:
             self.node.destroy_node()
 
 
-def _replay_reference(messages):
+def _replay_reference(messages, settings=None):
     """What `ccf replay` computes for the same messages in the same order (the shared engine)."""
-    eng = ImuEngine(make_filter())
+    eng = ImuEngine(make_filter(settings))
     out = []
     for topic, msg in messages:
         s = msg.header.stamp
@@ -288,5 +288,25 @@ def test_first_imu_before_its_magnetometer_sample_pairs_as_in_replay(context, in
         h.feed(swapped, 300)
         got = np.array([(m.orientation.x, m.orientation.y, m.orientation.z, m.orientation.w) for m in h.out])
         np.testing.assert_array_equal(got, _replay_reference(msgs))
+    finally:
+        h.close()
+
+
+def test_node_runs_the_kalman_baselines_with_array_parameters(context, inputs):
+    node = reliable_node(context, filter='ckf', ckf_r=[0.2, 0.02, 1.0])
+    assert node.engine.filter.name == 'ckf' and node.engine.filter.params.ckf_r == (0.2, 0.02, 1.0)
+    r = node.set_parameters([Parameter('ckf_r', value=[1.0])])[0]
+    assert not r.successful and 'ckf_r' in r.reason
+    r = node.set_parameters([Parameter('filter', value='ekf'), Parameter('ekf_q', value=[1.0, 2.0, 3.0])])[0]
+    assert r.successful and node.engine.filter.name == 'ekf' and node.engine.filter.params.ekf_q == (1.0, 2.0, 3.0)
+    h = Harness(context, node)
+    try:
+        h.wait_connected()
+        h.feed(inputs[:1000], 500)
+        assert len(h.out) == 500
+        got = np.array([(m.orientation.x, m.orientation.y, m.orientation.z, m.orientation.w) for m in h.out])
+        assert np.isfinite(got).all() and np.allclose(np.linalg.norm(got, axis=1), 1.0)
+        # The node's EKF answers exactly what the core's EKF computes from the same messages.
+        np.testing.assert_array_equal(got, _replay_reference(inputs[:1000], {'filter': 'ekf', 'ekf_q': (1, 2, 3)}))
     finally:
         h.close()

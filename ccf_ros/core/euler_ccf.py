@@ -45,18 +45,17 @@ def _triple(name: str, value: float | Sequence[float]) -> tuple[float, float, fl
 
 
 @dataclass(frozen=True)
-class EulerCcfParams(CommonParams):
-    """Parameters of :class:`EulerCcf` (paper defaults). Each gain is one value or ``(roll, pitch, yaw)``.
+class NcfParams(CommonParams):
+    """Parameters of :class:`EulerNcf`, the paper's non-linear CF (eqs 10-11). Each gain is one value or
+    ``(roll, pitch, yaw)``.
 
     Attributes:
-        kp: proportional gain of the NCF PI controller, 1/s. Default 25 (paper).
+        kp: proportional gain of the PI controller, 1/s. Default 25 (paper).
         ki: integral gain, 1/s². Default 0.1 (paper).
-        alpha: LCF weight of the integrated gyro path, applied per sample as in eq 14, in [0, 1]. Default 0.7.
     """
 
     kp: float | tuple[float, float, float] = 25.0
     ki: float | tuple[float, float, float] = 0.1
-    alpha: float | tuple[float, float, float] = 0.7
     _kp3: tuple[float, float, float] = field(init=False, repr=False, compare=False)
     _ki3: tuple[float, float, float] = field(init=False, repr=False, compare=False)
     _alpha3: tuple[float, float, float] = field(init=False, repr=False, compare=False)
@@ -65,13 +64,64 @@ class EulerCcfParams(CommonParams):
         super().__post_init__()
         kp = _triple('kp', self.kp)
         ki = _triple('ki', self.ki)
-        alpha = _triple('alpha', self.alpha)
-        for name, vals, hi in (('kp', kp, 1e6), ('ki', ki, 1e6), ('alpha', alpha, 1.0)):
+        for name, vals in (('kp', kp), ('ki', ki)):
             for v in vals:
-                check_range(name, v, 0.0, hi)
+                check_range(name, v, 0.0, 1e6)
         object.__setattr__(self, '_kp3', kp)
         object.__setattr__(self, '_ki3', ki)
+        # The NCF is the CCF without the LCF blend: alpha = 1.
+        object.__setattr__(self, '_alpha3', (1.0, 1.0, 1.0))
+
+
+@dataclass(frozen=True)
+class EulerCcfParams(NcfParams):
+    """Parameters of :class:`EulerCcf` (paper defaults). Each gain is one value or ``(roll, pitch, yaw)``.
+
+    Attributes:
+        kp: proportional gain of the NCF PI controller, 1/s. Default 25 (paper).
+        ki: integral gain, 1/s². Default 0.1 (paper).
+        alpha: LCF weight of the integrated gyro path, applied per sample as in eq 14, in [0, 1]. Default 0.7.
+    """
+
+    alpha: float | tuple[float, float, float] = 0.7
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        alpha = _triple('alpha', self.alpha)
+        for v in alpha:
+            check_range('alpha', v, 0.0, 1.0)
         object.__setattr__(self, '_alpha3', alpha)
+
+
+@dataclass(frozen=True)
+class LcfParams(CommonParams):
+    """Parameters of :class:`Lcf`, the paper's linear CF (eqs 7-9).
+
+    Attributes:
+        lcf_alpha: per-sample weight of the gyro path, in [0, 1]: ``x = a (x + rate dt) + (1 - a) x_a``, i.e. a time
+            constant ``a dt / (1 - a)`` s. Default 0.98 (the textbook value; the paper gives none).
+    """
+
+    lcf_alpha: float | tuple[float, float, float] = 0.98
+    _alpha3: tuple[float, float, float] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        alpha = _triple('lcf_alpha', self.lcf_alpha)
+        for v in alpha:
+            check_range('lcf_alpha', v, 0.0, 1.0)
+        object.__setattr__(self, '_alpha3', alpha)
+
+
+def euler_rates(phi: float, theta: float, p: float, q: float, r: float) -> tuple[float, float, float]:
+    """Euler-angle rates (roll, pitch, yaw), rad/s, from body rates ``p, q, r`` (rad/s) at roll ``phi``, pitch
+    ``theta`` (rad): the correct kinematics (module docstring). Near ±90° pitch ``cos(theta)`` is clamped to 1e-6."""
+    sphi, cphi = math.sin(phi), math.cos(phi)
+    ctheta = math.cos(theta)
+    if abs(ctheta) < 1e-6:
+        ctheta = math.copysign(1e-6, ctheta)
+    u = q * sphi + r * cphi
+    return (p + u * math.sin(theta) / ctheta, q * cphi - r * sphi, u / ctheta)
 
 
 def acc_mag_euler(
@@ -92,14 +142,30 @@ def acc_mag_euler(
     return roll, pitch, math.atan2(mx_l, my_l)
 
 
+def euler_quat(r: float, p: float, y: float) -> tuple[float, float, float, float]:
+    """Quaternion ``[w, x, y, z]`` of roll ``r``, pitch ``p``, yaw ``y`` (rad, Z-Y-X)."""
+    cr, sr = math.cos(0.5 * r), math.sin(0.5 * r)
+    cp, sp = math.cos(0.5 * p), math.sin(0.5 * p)
+    cy, sy = math.cos(0.5 * y), math.sin(0.5 * y)
+    return (
+        cr * cp * cy + sr * sp * sy,
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+    )
+
+
+_FIXED_VARIANCE = ((2.0 * math.pi / 180) ** 2,) * 2 + ((5.0 * math.pi / 180) ** 2,)
+
+
 class EulerCcf(OrientationFilter):
     """The paper's CCF per Euler axis (see module docstring). State: angles, own integrator, integral term."""
 
     name = 'ccf_euler'
     __slots__ = ('_i', '_x', '_xg')
-    params: EulerCcfParams
+    params: NcfParams
 
-    def __init__(self, params: EulerCcfParams | None = None) -> None:
+    def __init__(self, params: NcfParams | None = None) -> None:
         super().__init__(params if params is not None else EulerCcfParams())
 
     def _reset_state(self) -> None:
@@ -114,16 +180,7 @@ class EulerCcf(OrientationFilter):
         self._set_q()
 
     def _set_q(self) -> None:
-        r, p, y = self._x
-        cr, sr = math.cos(0.5 * r), math.sin(0.5 * r)
-        cp, sp = math.cos(0.5 * p), math.sin(0.5 * p)
-        cy, sy = math.cos(0.5 * y), math.sin(0.5 * y)
-        self._q = (
-            cr * cp * cy + sr * sp * sy,
-            sr * cp * cy - cr * sp * sy,
-            cr * sp * cy + sr * cp * sy,
-            cr * cp * sy - sr * sp * cy,
-        )
+        self._q = euler_quat(self._x[0], self._x[1], self._x[2])
 
     def _step(
         self,
@@ -141,14 +198,7 @@ class EulerCcf(OrientationFilter):
         mag_n2: float,
     ) -> None:
         x = self._x
-        phi, theta = x[0], x[1]
-        sphi, cphi = math.sin(phi), math.cos(phi)
-        ctheta = math.cos(theta)
-        # Keep away from the singularity instead of dividing by zero.
-        if abs(ctheta) < 1e-6:
-            ctheta = math.copysign(1e-6, ctheta)
-        u = gy * sphi + gz * cphi
-        rates = (gx + u * math.sin(theta) / ctheta, gy * cphi - gz * sphi, u / ctheta)
+        rates = euler_rates(x[0], x[1], gx, gy, gz)
         p = self.params
         kp, ki, alpha = p._kp3, p._ki3, p._alpha3
         if acc_n2:
@@ -186,4 +236,65 @@ class EulerCcf(OrientationFilter):
     @property
     def orientation_variance(self) -> tuple[float, float, float]:
         """A fixed figure: the Euler form keeps no uncertainty estimate; 2° inclination, 5° heading."""
-        return ((2.0 * math.pi / 180) ** 2,) * 2 + ((5.0 * math.pi / 180) ** 2,)
+        return _FIXED_VARIANCE
+
+
+class EulerNcf(EulerCcf):
+    """The paper's NCF (eqs 10-11): the Euler CCF without the LCF blend (alpha = 1). Per axis
+    ``x' = rate + Kp e + Ki ∫e``, ``e = x_a - x``; transfer function from ``x_a``: (Kp s + Ki) / (s² + Kp s + Ki)."""
+
+    name = 'ncf'
+    __slots__ = ()
+    params: NcfParams
+
+    def __init__(self, params: NcfParams | None = None) -> None:
+        super().__init__(params if params is not None else NcfParams())
+
+
+class Lcf(OrientationFilter):
+    """The paper's LCF (eqs 7-9), per Euler axis: ``x = a (x + rate dt) + (1 - a) x_a``. No bias estimate.
+
+    Transfer function (continuous equivalent, ``tau = a dt / (1 - a)``): ``X = (X_a + tau * Rate) / (tau s + 1)``.
+    """
+
+    name = 'lcf'
+    __slots__ = ('_x',)
+    params: LcfParams
+
+    def __init__(self, params: LcfParams | None = None) -> None:
+        super().__init__(params if params is not None else LcfParams())
+
+    def _reset_state(self) -> None:
+        self._x = [0.0, 0.0, 0.0]
+
+    def _init(self, ax: float, ay: float, az: float, mx: float, my: float, mz: float, mag_ok: bool) -> None:
+        self._x = list(acc_mag_euler(ax, ay, az, mx, my, mz, mag_ok, 0.0))
+        self._q = euler_quat(self._x[0], self._x[1], self._x[2])
+
+    def _step(
+        self, dt: float, gx: float, gy: float, gz: float, ax: float, ay: float, az: float, acc_n2: float,
+        mx: float, my: float, mz: float, mag_n2: float,
+    ) -> None:
+        x = self._x
+        rates = euler_rates(x[0], x[1], gx, gy, gz)
+        alpha = self.params._alpha3
+        if acc_n2:
+            xa = acc_mag_euler(ax, ay, az, mx, my, mz, mag_n2 != 0.0, x[2])
+        for i in range(3):
+            xg = x[i] + rates[i] * dt
+            if acc_n2 and (i < 2 or mag_n2):
+                # a * x_g + (1 - a) * x_a across the ±pi seam
+                xg = xa[i] + alpha[i] * ((xg - xa[i] + _PI) % _TWO_PI - _PI)
+            x[i] = (xg + _PI) % _TWO_PI - _PI
+        x[1] = max(-_HALF_PI, min(_HALF_PI, x[1]))
+        self._q = euler_quat(x[0], x[1], x[2])
+
+    @property
+    def gyro_bias(self) -> tuple[float, float, float]:
+        """The LCF estimates no bias: zeros."""
+        return (0.0, 0.0, 0.0)
+
+    @property
+    def orientation_variance(self) -> tuple[float, float, float]:
+        """A fixed figure (no uncertainty estimate): 2° inclination, 5° heading, rad²."""
+        return _FIXED_VARIANCE

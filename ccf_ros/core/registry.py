@@ -9,7 +9,8 @@ from typing import Any
 from .base import CommonParams, OrientationFilter
 from .baselines import Madgwick, MadgwickParams, Mahony, MahonyParams
 from .ccf import CcfParams, QuaternionCcf
-from .euler_ccf import EulerCcf, EulerCcfParams
+from .euler_ccf import EulerCcf, EulerCcfParams, EulerNcf, Lcf, LcfParams, NcfParams
+from .kalman import Ckf, CkfParams, Ekf, EkfParams
 
 #: (filter, formulation) -> (params class, filter class)
 FILTERS: dict[tuple[str, str], tuple[type[CommonParams], type[OrientationFilter]]] = {
@@ -18,6 +19,10 @@ FILTERS: dict[tuple[str, str], tuple[type[CommonParams], type[OrientationFilter]
     # Baselines of the paper's comparison; `formulation` does not apply to them.
     ('madgwick', 'quaternion'): (MadgwickParams, Madgwick),
     ('mahony', 'quaternion'): (MahonyParams, Mahony),
+    ('lcf', 'euler'): (LcfParams, Lcf),
+    ('ncf', 'euler'): (NcfParams, EulerNcf),
+    ('ekf', 'euler'): (EkfParams, Ekf),
+    ('ckf', 'euler'): (CkfParams, Ckf),
 }
 
 #: Settings that select the filter rather than parametrise it.
@@ -48,6 +53,14 @@ def _coerce(name: str, value: Any, default: Any) -> Any:
                 return False
             raise ValueError(f'{name} must be true or false, got {value!r}')
         return value
+    if isinstance(default, tuple):
+        if isinstance(value, str):
+            value = value.strip().strip('[]()').split(',')
+        try:
+            # lists, tuples, and the array.array rclpy returns for double-array parameters
+            return tuple(float(v) for v in value)
+        except (TypeError, ValueError):
+            raise ValueError(f'{name} must be {len(default)} numbers, got {value!r}') from None
     if isinstance(default, (int, float)):
         if isinstance(value, str):
             text = value.strip()
@@ -76,6 +89,10 @@ def make_filter(settings: Mapping[str, Any] | None = None, *, strict: bool = Tru
     settings = dict(settings or {})
     kind = str(settings.pop('filter', SELECTORS['filter']))
     formulation = str(settings.pop('formulation', SELECTORS['formulation']))
+    formulations = [f for k, f in FILTERS if k == kind]
+    if (kind, formulation) not in FILTERS and formulation == SELECTORS['formulation'] and len(formulations) == 1:
+        # The baselines exist in one formulation only: `filter=ekf` needs no `formulation=euler`.
+        formulation = formulations[0]
     if (kind, formulation) not in FILTERS:
         choices = ', '.join(f'filter={k} formulation={f}' for k, f in FILTERS)
         raise ValueError(f'no filter {kind!r} with formulation {formulation!r} (choose: {choices})')
