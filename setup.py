@@ -31,7 +31,11 @@ setup(
         ('share/' + package_name + '/launch', glob('launch/*.py')),
     ],
     install_requires=requires,
-    extras_require={'test': ['pytest>=7', 'ruff>=0.5', 'mypy>=1.8', 'colcon-core', 'colcon-ros', 'colcon-python-setup-py']},
+    extras_require={
+        # `ccf study`'s least-squares gain fit (LSCF); everything else needs only numpy.
+        'study': ['scipy>=1.10'],
+        'test': ['pytest>=7', 'ruff>=0.5', 'mypy>=1.8', 'colcon-core', 'colcon-ros', 'colcon-python-setup-py', 'scipy>=1.10'],
+    },
     python_requires='>=3.11',
     zip_safe=True,
     maintainer='ccf_ros developers',

@@ -119,6 +119,36 @@ def cmd_demo(args: argparse.Namespace) -> int:
                     live_rate=args.live_rate)
 
 
+def cmd_study(args: argparse.Namespace) -> int:
+    from .study.datasets import Topics
+    from .study.report import write_report
+    from .study.run import StudyOptions, run_study
+
+    out = Path(args.output)
+    if out.exists() and any(out.iterdir()) and not args.overwrite:
+        raise ValueError(f'{out} exists and is not empty (use --overwrite)')
+    for bag in args.bags:
+        if not Path(bag).exists():
+            raise BagError(f'{bag}: no such bag')
+    opts = StudyOptions(
+        long_run_s=args.long_run_s,
+        jobs=args.jobs,
+        lscf=not args.no_lscf,
+        lscf_iterations=args.lscf_iterations,
+        repetitions=args.repetitions,
+        bode_frequencies=args.bode_frequencies,
+    )
+    topics = Topics(args.imu_topic, args.mag_topic, args.reference, args.mask_topic or None)
+    results = run_study(args.bags, opts, topics=topics, progress=not args.quiet)
+    command = 'ccf study ' + ' '.join(sys.argv[2:]) if len(sys.argv) > 2 else ''
+    summary = write_report(results, out, command)
+    for v in summary['verdicts']:
+        print(f'claim {v["claim"]} ({v["formulation"]}): {v["verdict"]}')
+    print(f'report: {out / "report.md"}  ({len(summary["figures"])} figures, results.json; '
+          f'{results["wall_time_s"] / 60:.1f} min)')
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from . import __version__
 
@@ -173,6 +203,22 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument('--offline-only', action='store_true', help='skip the live ccf_node run')
     d.add_argument('--live-rate', type=float, default=4.0, help='playback speed into the live node (default 4x)')
     d.set_defaults(func=cmd_demo)
+    st = sub.add_parser('study', help="reproduce the paper's experiments on bags with a reference: report.md, figures, JSON")
+    st.add_argument('bags', nargs='+', help='bags with IMU, magnetometer and reference orientation (BROAD layout)')
+    st.add_argument('-o', '--output', required=True, help='output directory')
+    st.add_argument('--imu-topic', default='/imu/data_raw')
+    st.add_argument('--mag-topic', default='/imu/mag')
+    st.add_argument('--reference', default='/ground_truth/pose', help='reference orientation topic')
+    st.add_argument('--mask-topic', default='/ground_truth/moving', help="Bool topic: score only where true ('' = all)")
+    st.add_argument('--long-run-s', type=float, default=7200.0, help='simulated long run, s (default 7200; 0 = skip)')
+    st.add_argument('--jobs', type=int, default=0, help='worker processes (default: CPUs)')
+    st.add_argument('--no-lscf', action='store_true', help='skip the least-squares gain fits (no scipy needed)')
+    st.add_argument('--lscf-iterations', type=int, default=8)
+    st.add_argument('--repetitions', type=int, default=20, help='timing repetitions (Fig 12)')
+    st.add_argument('--bode-frequencies', type=int, default=7, help='measured frequencies per Bode case')
+    st.add_argument('--overwrite', action='store_true')
+    st.add_argument('--quiet', action='store_true', help='no progress bars')
+    st.set_defaults(func=cmd_study)
     return p
 
 

@@ -52,10 +52,15 @@ def generate(
     bias_init_rad_s: float = np.radians(0.5),
     bias_walk_rad_s_sqrt_s: float = 2e-4,
     t0_s: float = 1.7e9,
+    rot_scale: float = 1.0,
+    bias_drift_rad_s: float = 0.0,
+    bias_drift_period_s: float = 3600.0,
 ) -> SimData:
-    """Hand-held-like motion: smooth rotations up to ~±80°, slow heading changes, small translations.
+    """Hand-held-like motion: smooth rotations up to ~±80° (times ``rot_scale``), slow heading changes, small
+    translations.
 
-    Deterministic for a seed. The gyro bias starts at ``N(0, bias_init)`` per axis and random-walks.
+    Deterministic for a seed. The gyro bias starts at ``N(0, bias_init)`` per axis, random-walks, and (if
+    ``bias_drift_rad_s`` > 0) drifts as a sinusoid of that amplitude and ``bias_drift_period_s`` (thermal drift).
     """
     if not (duration_s > 0 and rate_hz > 0):
         raise ValueError(f'duration and rate must be > 0, got {duration_s!r}, {rate_hz!r}')
@@ -66,7 +71,9 @@ def generate(
     # Smooth 0 -> 1 ramp after the initial rest: motion starts gently.
     ramp = np.clip((tr - rest) / 2.0, 0.0, 1.0)
     ramp = ramp * ramp * (3 - 2 * ramp)
-    params_rot = [(rng.uniform(0.05, 0.4), rng.uniform(0, 2 * np.pi), rng.uniform(0.3, 0.9)) for _ in range(9)]
+    params_rot = [
+        (rng.uniform(0.05, 0.4), rng.uniform(0, 2 * np.pi), rot_scale * rng.uniform(0.3, 0.9)) for _ in range(9)
+    ]
     yaw_rate = rng.uniform(-0.3, 0.3)
 
     def rotvec(t: np.ndarray) -> np.ndarray:
@@ -100,6 +107,9 @@ def generate(
     bias = bias_init_rad_s * rng.standard_normal(3) + np.cumsum(
         bias_walk_rad_s_sqrt_s / np.sqrt(rate_hz) * rng.standard_normal((n, 3)), axis=0
     )
+    if bias_drift_rad_s > 0.0:
+        phase = rng.uniform(0, 2 * np.pi, 3)
+        bias = bias + bias_drift_rad_s * (np.sin(2 * np.pi * tr[:, None] / bias_drift_period_s + phase) - np.sin(phase))
     gyr = omega + bias + gyro_noise_rad_s * rng.standard_normal((n, 3))
     return SimData(t_s=t0_s + tr, q_true=q, gyr=gyr, acc=acc, mag=mag, bias=bias, moving=tr >= rest)
 

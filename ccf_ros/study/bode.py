@@ -1,0 +1,122 @@
+"""Figs 2/4/8: frequency responses of LCF, NCF and CCF from the accelerometer angle to the estimate, from the
+paper's transfer functions (eqs 9, 11, 15) and measured on the implementations.
+
+Measurement: the roll angle seen by the accelerometer is a sinusoid ``A sin(2 pi f t)`` (gyro silent, no
+magnetometer); the filter's roll output is fitted with ``sin, cos, 1, t`` over whole periods after the transient,
+giving the complex gain at ``f``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from ..core.registry import make_filter
+
+G = 9.80665
+
+
+def tf_lcf(f_hz: np.ndarray, alpha: float, rate_hz: float) -> np.ndarray:
+    """Eq 9: ``1 / (tau s + 1)`` with ``tau = alpha T / (1 - alpha)`` (per-sample alpha at period ``T``)."""
+    s = 2j * np.pi * np.asarray(f_hz)
+    tau = alpha / (1.0 - alpha) / rate_hz
+    return 1.0 / (tau * s + 1.0)
+
+
+def tf_ncf(f_hz: np.ndarray, kp: float, ki: float) -> np.ndarray:
+    """Eq 11: ``(Kp s + Ki) / (s² + Kp s + Ki)``."""
+    s = 2j * np.pi * np.asarray(f_hz)
+    return (kp * s + ki) / (s * s + kp * s + ki)
+
+
+def tf_ccf(f_hz: np.ndarray, kp: float, ki: float, alpha: float) -> np.ndarray:
+    """Eq 15: ``((1 - a) s² + a Kp s + a Ki) / (s² + a Kp s + a Ki)``."""
+    s = 2j * np.pi * np.asarray(f_hz)
+    a = alpha
+    return ((1 - a) * s * s + a * kp * s + a * ki) / (s * s + a * kp * s + a * ki)
+
+
+def measure(
+    settings: dict[str, Any], f_hz: float, rate_hz: float, slowest_pole: float = 1.0, amplitude_rad: float = 0.2
+) -> complex:
+    """Complex gain from the accelerometer roll angle to the filter's roll output at ``f_hz``.
+
+    The transient is let die for 6 time constants of ``slowest_pole`` (rad/s; at most 300 s, at least 3 periods);
+    slower remains (a pole nearly cancelled by a zero) are absorbed by the fit's linear term."""
+    periods_settle = 3
+    periods_fit = 4
+    settle_s = max(periods_settle / f_hz, 20.0, min(300.0, 6.0 / slowest_pole))
+    fit_s = max(periods_fit / f_hz, 10.0)
+    fit_s = math.ceil(fit_s * f_hz) / f_hz
+    n = int(round((settle_s + fit_s) * rate_hz))
+    t = np.arange(n) / rate_hz
+    roll = amplitude_rad * np.sin(2 * np.pi * f_hz * t)
+    acc = np.stack((np.zeros(n), G * np.sin(roll), G * np.cos(roll)), axis=1)
+    filt = make_filter({**settings, 'use_mag': False})
+    out = np.full(n, np.nan)
+    zero = (0.0, 0.0, 0.0)
+    acc_l = acc.tolist()
+    update = filt.update
+    for k in range(n):
+        update(float(t[k]), zero, acc_l[k], None)
+        w, x, y, z = filt.quaternion
+        out[k] = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    sel = t >= t[-1] - fit_s
+    ts = t[sel]
+    basis = np.stack((np.sin(2 * np.pi * f_hz * ts), np.cos(2 * np.pi * f_hz * ts), np.ones_like(ts), ts - ts[0]), 1)
+    coef, *_ = np.linalg.lstsq(basis, out[sel], rcond=None)
+    # out = A |H| sin(wt + phase) = A |H| (cos(phase) sin + sin(phase) cos)
+    return complex(coef[0], coef[1]) / amplitude_rad
+
+
+def db(h: np.ndarray | complex) -> np.ndarray:
+    return 20.0 * np.log10(np.abs(h))
+
+
+def phase_deg(h: np.ndarray | complex) -> np.ndarray:
+    return np.degrees(np.angle(h))
+
+
+def _slowest(a1: float, a0: float) -> float:
+    """Smallest |real part| of the roots of s² + a1 s + a0, rad/s."""
+    return float(min(abs(r.real) for r in np.roots([1.0, a1, a0])))
+
+
+def cases(rate_hz: float) -> list[tuple[str, str, dict[str, Any], Any, float]]:
+    """Filters whose response is measured: (figure, label, settings, transfer function of f, slowest pole)."""
+    out: list[tuple[str, str, dict[str, Any], Any, float]] = []
+    for a in (0.7, 0.98):
+        out.append(('fig02_lcf', f'LCF alpha={a:g}', {'filter': 'lcf', 'lcf_alpha': a},
+                    lambda f, a=a: tf_lcf(f, a, rate_hz), (1.0 - a) * rate_hz / a))
+    for kp, ki in ((25.0, 0.1), (1.0, 0.01), (0.1, 1.0)):
+        out.append(('fig04_ncf', f'NCF Kp={kp:g} Ki={ki:g}', {'filter': 'ncf', 'kp': kp, 'ki': ki},
+                    lambda f, kp=kp, ki=ki: tf_ncf(f, kp, ki), _slowest(kp, ki)))
+    for kp, ki in ((25.0, 0.1), (1.0, 0.01), (0.1, 1.0)):
+        out.append(('fig08_ccf', f'CCF Kp={kp:g} Ki={ki:g} alpha=0.7',
+                    {'filter': 'ccf', 'formulation': 'euler', 'kp': kp, 'ki': ki, 'alpha': 0.7},
+                    lambda f, kp=kp, ki=ki: tf_ccf(f, kp, ki, 0.7), _slowest(0.7 * kp, 0.7 * ki)))
+    return out
+
+
+def bode_study(rate_hz: float = 286.0, n_freq: int = 7) -> dict[str, Any]:
+    """Theory and measurement at ``n_freq`` log-spaced frequencies from 0.02 Hz to ``rate_hz / 100``; the largest
+    magnitude (dB) and phase (deg) deviations per case."""
+    f_meas = np.geomspace(0.02, rate_hz / 100.0, n_freq)
+    f_theory = np.geomspace(0.005, rate_hz / 2.0, 200)
+    out: dict[str, Any] = {'rate_hz': rate_hz, 'f_measured_hz': f_meas.tolist(), 'f_theory_hz': f_theory.tolist(),
+                           'cases': []}
+    for fig, label, settings, tf, slowest in cases(rate_hz):
+        h_meas = np.array([measure(settings, float(f), rate_hz, slowest) for f in f_meas])
+        h_th = tf(f_meas)
+        dmag = np.abs(db(h_meas) - db(h_th))
+        dph = np.abs((phase_deg(h_meas) - phase_deg(h_th) + 180.0) % 360.0 - 180.0)
+        curve = tf(f_theory)
+        out['cases'].append({
+            'figure': fig, 'label': label, 'settings': settings,
+            'theory_db': db(curve).tolist(), 'theory_phase_deg': phase_deg(curve).tolist(),
+            'measured_db': db(h_meas).tolist(), 'measured_phase_deg': phase_deg(h_meas).tolist(),
+            'max_abs_db_error': float(dmag.max()), 'max_abs_phase_error_deg': float(dph.max()),
+        })
+    return out

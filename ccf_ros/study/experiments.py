@@ -1,0 +1,220 @@
+"""The paper's experiments, each a function of one dataset (so that datasets run in parallel).
+
+Both formulations are studied with the same gains:
+
+* **euler** — the paper's per-axis filters: NCF (eqs 10-11) and CCF (eqs 12-15) with ``(Kp, Ki, alpha)`` as given.
+* **quaternion** — the NCF's quaternion counterpart is Mahony's filter (a PI correction on the attitude error, gains
+  ``Kp`` 1/s and ``Ki`` 1/s²); the ccf_ros CCF takes the same gains through the per-axis equivalence of
+  :func:`quaternion_ccf_settings`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from ..core.metrics import error_angles
+from ..core.quaternion import quat_from_acc_mag, quat_from_rotvec, quat_to_euler, wrap_angle
+from ..core.registry import make_filter
+from .datasets import Dataset, run_filter, score
+
+#: The paper's gain grid (Tables 1-2) and defaults.
+KP_GRID = (75.0, 25.0, 1.0, 0.1)
+KI_GRID = (0.01, 0.1, 1.0)
+ALPHA_GRID = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
+PAPER_KP, PAPER_KI, PAPER_ALPHA = 25.0, 0.1, 0.7
+FORMULATIONS = ('euler', 'quaternion')
+
+
+def quaternion_ccf_settings(kp: float, ki: float, alpha: float) -> dict[str, Any]:
+    """ccf_ros CCF settings equivalent to the paper's gains.
+
+    Per axis the paper's CCF integrates ``rate + Kp (x_a - x) + I`` with ``x = alpha x_g + (1 - alpha) x_a``, so the
+    integrator sees the error ``alpha (x_a - x_g)``: correction rate ``alpha Kp`` (1/s) -> ``tau_acc_s = 1 / (alpha
+    Kp)``; bias gain ``alpha Ki`` (1/s²) -> ``tau_bias_s = 1 / sqrt(alpha Ki)``. Heading keeps the default ratio
+    ``tau_mag_s = 3 tau_acc_s``. The ccf_ros defaults (3 s, 9 s, 60 s) correspond to ``alpha Kp = 0.33``.
+    """
+    rate = max(alpha * kp, 1e-9)
+    return {
+        'filter': 'ccf',
+        'formulation': 'quaternion',
+        'tau_acc_s': 1.0 / rate,
+        'tau_mag_s': 3.0 / rate,
+        'tau_bias_s': 1.0 / math.sqrt(max(alpha * ki, 1e-12)),
+    }
+
+
+def ncf_settings(formulation: str, kp: float, ki: float) -> dict[str, Any]:
+    """The NCF of a formulation at gains ``kp`` (1/s), ``ki`` (1/s²)."""
+    if formulation == 'euler':
+        return {'filter': 'ncf', 'kp': kp, 'ki': ki}
+    return {'filter': 'mahony', 'mahony_kp': kp, 'mahony_ki': ki}
+
+
+def ccf_settings(formulation: str, kp: float, ki: float, alpha: float) -> dict[str, Any]:
+    """The CCF of a formulation at the paper's gains."""
+    if formulation == 'euler':
+        return {'filter': 'ccf', 'formulation': 'euler', 'kp': kp, 'ki': ki, 'alpha': alpha}
+    return quaternion_ccf_settings(kp, ki, alpha)
+
+
+#: Figs 10-11: every method with its Table 4 / default parameters (LSCF is added per dataset after its fit).
+METHODS: dict[str, dict[str, Any]] = {
+    'LCF': {'filter': 'lcf'},
+    'NCF': {'filter': 'ncf'},
+    'CCF paper (euler)': {'filter': 'ccf', 'formulation': 'euler'},
+    'CCF ccf_ros (quaternion)': {'filter': 'ccf'},
+    'Mahony': {'filter': 'mahony'},
+    'Madgwick': {'filter': 'madgwick'},
+    'EKF': {'filter': 'ekf'},
+    'CKF': {'filter': 'ckf'},
+}
+
+
+def gain_grid(ds: Dataset) -> dict[str, Any]:
+    """Tables 1-2: NCF and CCF (alpha = 0.7) over Kp x Ki, both formulations. Keys ``formulation/filter/kp/ki``."""
+    out: dict[str, Any] = {}
+    for form in FORMULATIONS:
+        for kp in KP_GRID:
+            for ki in KI_GRID:
+                out[f'{form}/NCF/{kp:g}/{ki:g}'] = score(ncf_settings(form, kp, ki), ds)
+                out[f'{form}/CCF/{kp:g}/{ki:g}'] = score(ccf_settings(form, kp, ki, PAPER_ALPHA), ds)
+    return out
+
+
+def alpha_sweep(ds: Dataset) -> dict[str, Any]:
+    """Fig 9: CCF at the paper's Kp, Ki over alpha 0.1-0.9, both formulations. Keys ``formulation/alpha``."""
+    return {
+        f'{form}/{a:g}': score(ccf_settings(form, PAPER_KP, PAPER_KI, a), ds) for form in FORMULATIONS for a in ALPHA_GRID
+    }
+
+
+def methods(ds: Dataset, names: tuple[str, ...] = tuple(METHODS)) -> dict[str, Any]:
+    """Figs 10-11: the methods of :data:`METHODS` on one dataset."""
+    return {name: score(METHODS[name], ds) for name in names}
+
+
+def time_series(ds: Dataset, max_points: int = 4000) -> dict[str, Any]:
+    """Figs 13-14: roll/pitch/yaw (rad) of the reference, the CCFs, gyro-only integration and the accelerometer/
+    magnetometer attitude alone, at (at most ``max_points``) reference stamps."""
+    step = max(1, len(ds.t_ref) // max_points)
+    sel = np.arange(0, len(ds.t_ref), step)
+    out: dict[str, Any] = {'t_s': (ds.t_ref[sel] - ds.t_ref[0]).tolist(), 'reference': quat_to_euler(ds.q_ref[sel])}
+    for label, settings in (
+        ('CCF ccf_ros (quaternion)', METHODS['CCF ccf_ros (quaternion)']),
+        ('CCF paper (euler)', METHODS['CCF paper (euler)']),
+    ):
+        q, _, _ = run_filter(settings, ds)
+        out[label] = quat_to_euler(q[sel])
+    # Gyro only: integrate from the first reference orientation (exact rotation per sample).
+    k0 = int(np.searchsorted(ds.t_s, ds.t_ref[0]))
+    q_g = np.empty((len(ds.t_s), 4))
+    q_g[:] = np.nan
+    q0 = ds.q_ref[np.flatnonzero(np.isfinite(ds.q_ref[:, 0]))[0]]
+    dt = np.diff(ds.t_s, prepend=ds.t_s[0])
+    steps = quat_from_rotvec(ds.gyr * dt[:, None])
+    q_cur = np.asarray(q0, dtype=float)
+    for k in range(k0, len(ds.t_s)):
+        q_cur = _qmul(q_cur, steps[k])
+        q_g[k] = q_cur
+    idx = np.clip(np.searchsorted(ds.t_s, ds.t_ref[sel]), 0, len(ds.t_s) - 1)
+    out['gyro only'] = quat_to_euler(q_g[idx])
+    mag = ds.mag[idx]
+    q_am = quat_from_acc_mag(ds.acc[idx], np.where(np.isfinite(mag), mag, 0.0))
+    out['accelerometer/magnetometer only'] = quat_to_euler(q_am)
+    for key, val in list(out.items()):
+        if isinstance(val, np.ndarray):
+            out[key] = val.tolist()
+    out['dataset'] = ds.name
+    return out
+
+
+def _qmul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    pw, px, py, pz = p
+    qw, qx, qy, qz = q
+    r = np.array(
+        (
+            pw * qw - px * qx - py * qy - pz * qz,
+            pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx,
+            pw * qz + px * qy - py * qx + pz * qw,
+        )
+    )
+    return r / math.sqrt(float(r @ r))
+
+
+#: Figs 15-16: filters of the long run.
+LONG_RUN_FILTERS: dict[str, dict[str, Any]] = {
+    'CCF ccf_ros (quaternion)': {'filter': 'ccf'},
+    'CCF paper (euler)': {'filter': 'ccf', 'formulation': 'euler'},
+    'NCF': {'filter': 'ncf'},
+    'EKF': {'filter': 'ekf'},
+    'CKF': {'filter': 'ckf'},
+}
+
+
+def long_run(ds: Dataset, label: str, window_s: float = 100.0) -> dict[str, Any]:
+    """Figs 15-16: one filter over a long simulated run: RMSE per ``window_s`` window (total deg, per axis rad)
+    and the bias estimate against the true bias (rad/s), decimated to one value per second."""
+    q, bias, _ = run_filter(LONG_RUN_FILTERS[label], ds)
+    total, _, _ = error_angles(np.where(np.isfinite(q), q, [1.0, 0, 0, 0]), ds.q_ref)
+    total[~np.isfinite(q).all(axis=1)] = np.pi
+    d = wrap_angle(quat_to_euler(np.where(np.isfinite(q), q, [1.0, 0, 0, 0])) - quat_to_euler(ds.q_ref))
+    t = ds.t_ref - ds.t_ref[0]
+    win = np.floor(t / window_s).astype(int)
+    n_win = int(win.max()) + 1
+    rmse_deg, rmse_axis = [], []
+    for w in range(n_win):
+        m = (win == w) & ds.mask
+        if not m.any():
+            continue
+        rmse_deg.append(float(np.degrees(np.sqrt(np.mean(total[m] ** 2)))))
+        rmse_axis.append([float(np.sqrt(np.mean(d[m, i] ** 2))) for i in range(3)])
+    per_s = max(1, int(round(ds.rate_hz)))
+    out: dict[str, Any] = {
+        'window_s': window_s,
+        'rmse_total_deg': rmse_deg,
+        'rmse_rad': rmse_axis,
+        'bias_rad_s': bias[::per_s].tolist(),
+    }
+    if ds.bias is not None:
+        out['true_bias_rad_s'] = ds.bias[::per_s].tolist()
+    return out
+
+
+def compute_time(ds: Dataset, repetitions: int = 20, n_samples: int = 2860) -> dict[str, Any]:
+    """Fig 12: time per ``update()`` (µs) of CCF (both forms), EKF and CKF over the first ``n_samples`` samples,
+    ``repetitions`` times, the filters interleaved within each repetition so that machine load hits all alike."""
+    labels = {
+        'CCF paper (euler)': METHODS['CCF paper (euler)'],
+        'CCF ccf_ros (quaternion)': METHODS['CCF ccf_ros (quaternion)'],
+        'EKF': METHODS['EKF'],
+        'CKF': METHODS['CKF'],
+    }
+    n = min(n_samples, len(ds.t_s))
+    t = ds.t_s[:n].tolist()
+    g = ds.gyr[:n].tolist()
+    a = ds.acc[:n].tolist()
+    m = [v if all(math.isfinite(x) for x in v) else None for v in ds.mag[:n].tolist()]
+    times: dict[str, list[float]] = {k: [] for k in labels}
+    for _ in range(repetitions):
+        for label, settings in labels.items():
+            filt = make_filter(settings)
+            update = filt.update
+            t0 = time.perf_counter()
+            for i in range(n):
+                update(t[i], g[i], a[i], m[i])
+            times[label].append((time.perf_counter() - t0) / n * 1e6)
+    ref = 'CCF paper (euler)'
+    ratios = {k: [v / r for v, r in zip(vals, times[ref], strict=True)] for k, vals in times.items()}
+    return {
+        'n_samples': n,
+        'repetitions': repetitions,
+        'us_per_sample': times,
+        'median_us': {k: float(np.median(v)) for k, v in times.items()},
+        'ratio_to_ccf_euler_median': {k: float(np.median(v)) for k, v in ratios.items()},
+    }
+

@@ -1,0 +1,205 @@
+"""Orchestration of ``ccf study``: datasets and experiments in a process pool, a progress bar, then the report."""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import sys
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from ..offline.bagio import BagError
+from ..offline.simulate import generate
+from . import experiments as ex
+from .bode import bode_study
+from .datasets import Dataset, Topics, from_sim, load_bag
+
+
+@dataclass(frozen=True)
+class StudyOptions:
+    """What ``ccf study`` runs.
+
+    Attributes:
+        long_run_s: duration of the simulated long run (Figs 15-16), s; 0 skips it. Default 7200 (2 h).
+        long_run_rate_hz: its sample rate, Hz. Default 100.
+        jobs: worker processes. Default: number of CPUs.
+        lscf: fit the LSCF gains (needs scipy). Default True.
+        lscf_iterations: least-squares iterations per fit. Default 8.
+        repetitions: timing repetitions for Fig 12. Default 20 (the paper's).
+        bode_frequencies: measured frequencies per Bode case. Default 7.
+        seed: seed of the simulations.
+    """
+
+    long_run_s: float = 7200.0
+    long_run_rate_hz: float = 100.0
+    jobs: int = 0
+    lscf: bool = True
+    lscf_iterations: int = 8
+    repetitions: int = 20
+    bode_frequencies: int = 7
+    seed: int = 7
+
+    def __post_init__(self) -> None:
+        if not self.long_run_s >= 0:
+            raise ValueError(f'long_run_s must be >= 0, got {self.long_run_s!r}')
+        if not self.long_run_rate_hz > 0:
+            raise ValueError(f'long_run_rate_hz must be > 0, got {self.long_run_rate_hz!r}')
+        if self.repetitions < 1:
+            raise ValueError(f'repetitions must be >= 1, got {self.repetitions!r}')
+
+
+#: Gyro bias of the long run (a consumer MEMS gyro): initial N(0, 0.5°/s) per axis, thermal drift of ±0.3°/s over
+#: an hour, rate random walk 2e-5 rad/s/√s (0.07°/s after 2 h).
+LONG_RUN_BIAS = {
+    'bias_init_rad_s': math.radians(0.5),
+    'bias_drift_rad_s': math.radians(0.3),
+    'bias_drift_period_s': 3600.0,
+    'bias_walk_rad_s_sqrt_s': 2e-5,
+}
+
+
+def long_run_dataset(opts: StudyOptions) -> Dataset:
+    """The simulated long run: gentle hand-held motion (±40°) with the time-varying bias of :data:`LONG_RUN_BIAS`."""
+    sim = generate(opts.long_run_s, opts.long_run_rate_hz, seed=opts.seed, rot_scale=0.5, rest_s=30.0, **LONG_RUN_BIAS)
+    return from_sim(f'simulated {opts.long_run_s / 3600:g} h', sim)
+
+
+def _ignore_sigint() -> None:
+    """Workers leave Ctrl-C to the parent, which stops them (no traceback per worker)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+# Task functions run in worker processes; module level so that they pickle.
+def _task_load(path: str, topics: Topics) -> Dataset:
+    return load_bag(path, topics)
+
+
+def _task_lscf(kind: str, ds: Dataset, iterations: int) -> dict[str, Any]:
+    from . import lscf
+
+    fit = lscf.fit_euler(ds, iterations) if kind == 'euler' else lscf.fit_quaternion(ds, iterations)
+    fit['score'] = ex.score(fit['settings'], ds)
+    return fit
+
+
+def _task_long(opts: StudyOptions, label: str) -> dict[str, Any]:
+    return ex.long_run(long_run_dataset(opts), label)
+
+
+def _run_pool(
+    jobs: int, tasks: Sequence[tuple[str, Callable[..., Any], tuple[Any, ...]]], desc: str, progress: bool
+) -> dict[str, Any]:
+    """Run ``(key, function, args)`` tasks in a process pool with a progress bar; results by key."""
+    from tqdm import tqdm
+
+    results: dict[str, Any] = {}
+    with ProcessPoolExecutor(max_workers=jobs, initializer=_ignore_sigint) as pool:
+        futures: dict[Future[Any], str] = {pool.submit(fn, *args): key for key, fn, args in tasks}
+        bar = tqdm(total=len(futures), desc=desc, unit='task', disable=not progress, file=sys.stderr)
+        try:
+            pending = set(futures)
+            while pending:
+                done, pending = wait(pending, return_when=FIRST_COMPLETED)
+                for fut in done:
+                    try:
+                        results[futures[fut]] = fut.result()
+                    except (BagError, ValueError):
+                        raise  # the user's input: its message says what is wrong
+                    except Exception as err:
+                        raise RuntimeError(f'study task {futures[fut]} failed: {type(err).__name__}: {err}') from err
+                    bar.set_postfix_str(futures[fut][:40])
+                    bar.update()
+        except BaseException:
+            # Ctrl-C or a failed task: stop now rather than after the running tasks (minutes). The pool has no
+            # public way to stop a running task, hence its process table.
+            for fut in futures:
+                fut.cancel()
+            for proc in list(getattr(pool, '_processes', {}).values()):
+                proc.terminate()
+            pool.shutdown(wait=True, cancel_futures=True)
+            raise
+        finally:
+            bar.close()
+    return results
+
+
+def run_study(
+    bags: Sequence[str | Path],
+    opts: StudyOptions | None = None,
+    *,
+    topics: Topics | None = None,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Every experiment on every bag (plus the long simulated run); all numbers in one JSON-able dict."""
+    opts = opts or StudyOptions()
+    topics = topics or Topics()
+    t_start = time.time()
+    jobs = opts.jobs or os.cpu_count() or 1
+    if not bags:
+        raise ValueError('no bags given')
+    loaded = _run_pool(jobs, [(str(b), _task_load, (str(b), topics)) for b in bags], 'loading bags', progress)
+    datasets = [loaded[str(b)] for b in bags]
+    names = [d.name for d in datasets]
+    if len(set(names)) != len(names):
+        # Same folder name in different places: make labels unique.
+        for i, d in enumerate(datasets):
+            d.name = f'{i + 1:02d}_{d.name}'
+
+    tasks: list[tuple[str, Callable[..., Any], tuple[Any, ...]]] = []
+    # Longest first, so that two workers finish together.
+    if opts.long_run_s > 0:
+        for label in ('CKF', 'EKF'):
+            tasks.append((f'long/{label}', _task_long, (opts, label)))
+    for d in datasets:
+        if opts.lscf:
+            tasks.append((f'lscf_euler/{d.name}', _task_lscf, ('euler', d, opts.lscf_iterations)))
+            tasks.append((f'lscf_quaternion/{d.name}', _task_lscf, ('quaternion', d, opts.lscf_iterations)))
+        tasks.append((f'grid/{d.name}', ex.gain_grid, (d,)))
+        tasks.append((f'methods/{d.name}', ex.methods, (d,)))
+        tasks.append((f'alpha/{d.name}', ex.alpha_sweep, (d,)))
+    if opts.long_run_s > 0:
+        for label in ex.LONG_RUN_FILTERS:
+            if label not in ('CKF', 'EKF'):
+                tasks.append((f'long/{label}', _task_long, (opts, label)))
+    tasks.append(('bode', bode_study, (datasets[0].rate_hz, opts.bode_frequencies)))
+    tasks.append(('timeseries', ex.time_series, (datasets[0],)))
+    res = _run_pool(jobs, tasks, 'experiments', progress)
+
+    # Timing alone, after the pool: nothing of ours competes for the CPU.
+    if progress:
+        print(f'timing CCF, EKF, CKF ({opts.repetitions} repetitions) ...', file=sys.stderr)
+    timing = ex.compute_time(datasets[0], opts.repetitions)
+
+    out: dict[str, Any] = {
+        'datasets': [
+            {'name': d.name, 'samples': len(d.t_s), 'rate_hz': d.rate_hz, 'duration_s': d.duration_s,
+             'scored': int(d.mask.sum())}
+            for d in datasets
+        ],
+        'grid': {d.name: res[f'grid/{d.name}'] for d in datasets},
+        'alpha': {d.name: res[f'alpha/{d.name}'] for d in datasets},
+        'methods': {d.name: res[f'methods/{d.name}'] for d in datasets},
+        'bode': res['bode'],
+        'timeseries': res['timeseries'],
+        'compute_time': timing,
+        'options': opts.__dict__ | {'jobs': jobs},
+    }
+    if opts.lscf:
+        out['lscf'] = {
+            form: {d.name: res[f'lscf_{form}/{d.name}'] for d in datasets} for form in ('euler', 'quaternion')
+        }
+        for d in datasets:
+            out['methods'][d.name]['LSCF (euler)'] = out['lscf']['euler'][d.name]['score']
+    if opts.long_run_s > 0:
+        out['long_run'] = {
+            'duration_s': opts.long_run_s,
+            'rate_hz': opts.long_run_rate_hz,
+            'filters': {label: res[f'long/{label}'] for label in ex.LONG_RUN_FILTERS},
+        }
+    out['wall_time_s'] = time.time() - t_start
+    return out
