@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -123,7 +124,9 @@ def test_lscf_fit_lowers_the_residual_on_real_data(short_dataset):
 
 def test_study_end_to_end_on_a_real_trial(short_trial: Path, tmp_path: Path, capsys):
     out = tmp_path / 'study'
-    rc = ccf_main(['study', str(short_trial), '-o', str(out), '--long-run-s', '300', '--repetitions', '2',
+    # The same minute twice: the leave-one-out LSE fit of one must equal the other's own fit.
+    twin = shutil.copytree(short_trial, tmp_path / 'twin')
+    rc = ccf_main(['study', str(short_trial), str(twin), '-o', str(out), '--long-run-s', '300', '--repetitions', '2',
                    '--lscf-iterations', '2', '--bode-frequencies', '3', '--quiet'])
     assert rc == 0
     printed = capsys.readouterr().out
@@ -138,6 +141,11 @@ def test_study_end_to_end_on_a_real_trial(short_trial: Path, tmp_path: Path, cap
     assert res['grid'][name]['euler/NCF/25/0.1']['total_deg'] == res['methods'][name]['NCF']['total_deg']
     assert res['alpha'][name]['euler/0.7']['total_deg'] == res['grid'][name]['euler/CCF/25/0.1']['total_deg']
     assert res['grid'][name]['quaternion/NCF/25/0.1']['mean_rmse_rad'] > 0
+    assert res['methods']['twin'] == res['methods'][name]
+    for form in ('euler', 'quaternion'):
+        fits = res['lscf'][form]
+        assert fits[name]['loo_score'] == fits['twin']['score'] and fits['twin']['loo_score'] == fits[name]['score']
+        assert fits[name]['residual_rms_rad_end'] <= fits[name]['residual_rms_rad_start']
     # The grid: 4 Kp x 3 Ki x (NCF, CCF) x 2 forms, all scored on the same samples.
     assert len(res['grid'][name]) == 48
     assert len({v['n_scored'] for v in res['grid'][name].values()}) == 1

@@ -55,9 +55,10 @@ def generate(
     rot_scale: float = 1.0,
     bias_drift_rad_s: float = 0.0,
     bias_drift_period_s: float = 3600.0,
+    translation_m: float = 0.1,
 ) -> SimData:
-    """Hand-held-like motion: smooth rotations up to ~±80° (times ``rot_scale``), slow heading changes, small
-    translations.
+    """Hand-held-like motion: smooth rotations up to ~±80° (times ``rot_scale``), slow heading changes, and
+    translations of about ``translation_m`` (m, at 0.2-1.5 Hz: linear accelerations up to several m/s²).
 
     Deterministic for a seed. The gyro bias starts at ``N(0, bias_init)`` per axis, random-walks, and (if
     ``bias_drift_rad_s`` > 0) drifts as a sinusoid of that amplitude and ``bias_drift_period_s`` (thermal drift).
@@ -93,7 +94,7 @@ def generate(
     h = 1e-4
     dq = (orientation(tr + h) - orientation(tr - h)) / (2 * h)
     omega = 2.0 * quat_mul(quat_conj(q), dq)[:, 1:]
-    pos_amp = 0.1
+    pos_amp = translation_m
     acc_lin = np.zeros((n, 3))
     for axis in range(3):
         for _ in range(3):

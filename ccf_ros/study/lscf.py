@@ -155,3 +155,28 @@ def fit_quaternion(ds: Dataset, max_iterations: int = 8) -> dict[str, Any]:
         'residual_rms_rad_end': float(np.sqrt(np.mean(res.fun**2))),
         'settings': s,
     }
+
+
+def pooled_settings(form: str, fits: list[dict[str, Any]]) -> dict[str, Any]:
+    """Settings from the fits of *other* datasets (leave-one-out): geometric median of the gains and time constants,
+    median of alpha. Scored on the held-out dataset, they show what LSE tuning buys on data it has not seen."""
+    if not fits:
+        raise ValueError('no fits to pool')
+
+    def gmed(values: list[float]) -> float:
+        return float(10.0 ** np.median(np.log10(values)))
+
+    if form == 'euler':
+        return {
+            'filter': 'ccf',
+            'formulation': 'euler',
+            'kp': tuple(gmed([f['kp'][i] for f in fits]) for i in range(3)),
+            'ki': tuple(gmed([f['ki'][i] for f in fits]) for i in range(3)),
+            'alpha': tuple(float(np.median([f['alpha'][i] for f in fits])) for i in range(3)),
+        }
+    return {
+        'filter': 'ccf',
+        'tau_acc_s': gmed([f['tau_acc_s'] for f in fits]),
+        'tau_mag_s': gmed([f['tau_mag_s'] for f in fits]),
+        'tau_bias_s': gmed([f['tau_bias_s'] for f in fits]),
+    }
