@@ -33,7 +33,7 @@ DESCRIPTIONS: dict[str, str] = {
     'world_frame': 'world frame of the output orientation: enu (REP-103), ned or nwu',
     'tau_acc_s': 'quaternion: time constant of the accelerometer (inclination) blend, s',
     'tau_mag_s': 'quaternion: time constant of the magnetometer (heading) blend, s',
-    'tau_bias_s': 'quaternion: NCF integral time constant of the gyro-bias estimate while moving, s',
+    'tau_bias_s': 'quaternion: NCF integral time constant, s; the bias converges over ~tau_bias_s^2/tau_acc_s while moving',
     'rest_bias': 'quaternion: estimate the gyro bias from the gyro itself while at rest',
     'rest_gyro_rad_s': 'quaternion: rest if the gyro stays within this of its low-pass, rad/s',
     'rest_acc_m_s2': 'quaternion: ... and the accelerometer within this of its low-pass, m/s^2',

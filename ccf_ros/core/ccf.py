@@ -36,7 +36,9 @@ class CcfParams(CommonParams):
             acceleration, shorter follows a drifting gyro faster. Default 3.0.
         tau_mag_s: LCF time constant of the heading (magnetometer) blend, s. Default 9.0.
         tau_bias_s: NCF integral time constant, s: bias gain ``Ki = 1 / tau_bias_s**2`` on the attitude error
-            (rad) while moving. Default 60.0.
+            (rad) while moving. The bias then converges with a time constant of about ``tau_bias_s**2 / tau_acc_s``
+            (20 min at the defaults): slow on purpose, as faster learning while moving lets linear accelerations
+            into the bias (``ccf study`` shows both sides). At rest the bias is learnt within seconds. Default 60.0.
         rest_bias: estimate the bias from the gyro directly while the IMU rests. Default True.
         rest_gyro_rad_s: rest when the gyro stays within this of its low-passed value, rad/s. Default 2°/s.
         rest_acc_m_s2: ... and the accelerometer within this of its low-passed value, m/s². Default 0.5.
