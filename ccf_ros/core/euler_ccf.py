@@ -158,6 +158,14 @@ def euler_quat(r: float, p: float, y: float) -> tuple[float, float, float, float
 _FIXED_VARIANCE = ((2.0 * math.pi / 180) ** 2,) * 2 + ((5.0 * math.pi / 180) ** 2,)
 
 
+def wrap_euler(x: list[float]) -> tuple[float, float, float, float]:
+    """Wrap roll and yaw to [-pi, pi), clamp pitch to ±pi/2 (in place) and return the quaternion of ``x``."""
+    for i in range(3):
+        x[i] = (x[i] + _PI) % _TWO_PI - _PI
+    x[1] = max(-_HALF_PI, min(_HALF_PI, x[1]))
+    return euler_quat(x[0], x[1], x[2])
+
+
 class EulerCcf(OrientationFilter):
     """The paper's CCF per Euler axis (see module docstring). State: angles, own integrator, integral term."""
 
@@ -285,9 +293,8 @@ class Lcf(OrientationFilter):
             if acc_n2 and (i < 2 or mag_n2):
                 # a * x_g + (1 - a) * x_a across the ±pi seam
                 xg = xa[i] + alpha[i] * ((xg - xa[i] + _PI) % _TWO_PI - _PI)
-            x[i] = (xg + _PI) % _TWO_PI - _PI
-        x[1] = max(-_HALF_PI, min(_HALF_PI, x[1]))
-        self._q = euler_quat(x[0], x[1], x[2])
+            x[i] = xg
+        self._q = wrap_euler(x)
 
     @property
     def gyro_bias(self) -> tuple[float, float, float]:

@@ -20,11 +20,10 @@ from dataclasses import dataclass, field
 from operator import mul as _mul
 
 from .base import CommonParams, OrientationFilter, check_range
-from .euler_ccf import acc_mag_euler, euler_quat
+from .euler_ccf import acc_mag_euler, euler_quat, wrap_euler
 
 _PI = math.pi
 _TWO_PI = 2.0 * math.pi
-_HALF_PI = 0.5 * math.pi
 Matrix = list[list[float]]
 
 
@@ -186,12 +185,44 @@ def _measurement(
 _FIXED_FLOOR = 1e-12
 
 
-class Ekf(OrientationFilter):
+class _EulerKalman(OrientationFilter):
+    """Shared Kalman step: covariance propagation, measurement update, publication of the angles ``_x``."""
+
+    __slots__ = ('_p', '_x')
+    _p: Matrix  # covariance, rad² (and rad²/s, rad²/s² for the CKF's bias part)
+    _x: list[float]  # roll, pitch, yaw, rad
+
+    def _predict_correct(
+        self, phi: Matrix, q: Sequence[float], r: Sequence[float], p_reset: Sequence[float], dt: float,
+        ax: float, ay: float, az: float, acc_n2: float, mx: float, my: float, mz: float, mag_n2: float,
+    ) -> list[float] | None:
+        """``P = phi P phi^T + Q dt``, then (with an accelerometer) the update by ``x_a - x``; returns the state
+        correction, or None without one. A diverged covariance starts again from ``diag(p_reset)``."""
+        p = _mat_mul_t(_mat_mul(phi, self._p), phi)
+        for i in range(len(p)):
+            p[i][i] += q[i] * dt
+        dx = None
+        if acc_n2:
+            innovation, idx = _measurement(self._x, ax, ay, az, acc_n2, mx, my, mz, mag_n2)
+            dx = _kalman_update(p, innovation, idx, r)
+            if dx is None:
+                p = _diagonal(p_reset)
+        self._p = p
+        return dx
+
+    @property
+    def orientation_variance(self) -> tuple[float, float, float]:
+        """Diagonal of the angle (error) covariance, rad²."""
+        p = self._p
+        return (max(p[0][0], _FIXED_FLOOR), max(p[1][1], _FIXED_FLOOR), max(p[2][2], _FIXED_FLOOR))
+
+
+class Ekf(_EulerKalman):
     """Extended Kalman filter on (roll, pitch, yaw); see the module docstring. State: angles and their 3x3
     covariance (rad²)."""
 
     name = 'ekf'
-    __slots__ = ('_p', '_x')
+    __slots__ = ()
     params: EkfParams
 
     def __init__(self, params: EkfParams | None = None) -> None:
@@ -215,43 +246,25 @@ class Ekf(OrientationFilter):
         for i in range(3):
             x[i] += rates[i] * dt
         f = [[(1.0 if i == j else 0.0) + jac[i][j] * dt for j in range(3)] for i in range(3)]
-        p = _mat_mul_t(_mat_mul(f, self._p), f)
-        q = self.params.ekf_q
-        for i in range(3):
-            p[i][i] += q[i] * dt
-        if acc_n2:
-            innovation, idx = _measurement(x, ax, ay, az, acc_n2, mx, my, mz, mag_n2)
-            dx = _kalman_update(p, innovation, idx, self.params.ekf_r)
-            if dx is None:
-                # Diverged covariance: start it again from the measurement noise.
-                p = _diagonal(self.params.ekf_r)
-            else:
-                for i in range(3):
-                    x[i] += dx[i]
-        self._p = p
-        for i in range(3):
-            x[i] = (x[i] + _PI) % _TWO_PI - _PI
-        x[1] = max(-_HALF_PI, min(_HALF_PI, x[1]))
-        self._q = euler_quat(x[0], x[1], x[2])
+        p = self.params
+        dx = self._predict_correct(f, p.ekf_q, p.ekf_r, p.ekf_r, dt, ax, ay, az, acc_n2, mx, my, mz, mag_n2)
+        if dx is not None:
+            for i in range(3):
+                x[i] += dx[i]
+        self._q = wrap_euler(x)
 
     @property
     def gyro_bias(self) -> tuple[float, float, float]:
         """The EKF of the paper estimates no bias: zeros."""
         return (0.0, 0.0, 0.0)
 
-    @property
-    def orientation_variance(self) -> tuple[float, float, float]:
-        """Diagonal of the angle covariance, rad²."""
-        p = self._p
-        return (max(p[0][0], _FIXED_FLOOR), max(p[1][1], _FIXED_FLOOR), max(p[2][2], _FIXED_FLOOR))
 
-
-class Ckf(OrientationFilter):
+class Ckf(_EulerKalman):
     """Complementary (error-state) Kalman filter; see the module docstring. State: angles (rad), gyro bias (rad/s),
     6x6 error covariance."""
 
     name = 'ckf'
-    __slots__ = ('_b', '_p', '_x')
+    __slots__ = ('_b',)
     params: CkfParams
 
     def __init__(self, params: CkfParams | None = None) -> None:
@@ -290,33 +303,15 @@ class Ckf(OrientationFilter):
                 phi[i][j] = (1.0 if i == j else 0.0) + jac[i][j] * dt
                 phi[i][j + 3] = -e[i][j] * dt
             phi[i + 3][i + 3] = 1.0
-        p = _mat_mul_t(_mat_mul(phi, self._p), phi)
-        q = self.params.ckf_q
-        for i in range(6):
-            p[i][i] += q[i] * dt
-        if acc_n2:
-            innovation, idx = _measurement(x, ax, ay, az, acc_n2, mx, my, mz, mag_n2)
-            dx = _kalman_update(p, innovation, idx, self.params.ckf_r)
-            if dx is None:
-                # Diverged covariance: start it again (the bias estimate is kept).
-                p = _diagonal(self.params._p0)
-            else:
-                for i in range(3):
-                    x[i] += dx[i]
-                    b[i] += dx[i + 3]
-        self._p = p
-        for i in range(3):
-            x[i] = (x[i] + _PI) % _TWO_PI - _PI
-        x[1] = max(-_HALF_PI, min(_HALF_PI, x[1]))
-        self._q = euler_quat(x[0], x[1], x[2])
+        p = self.params
+        dx = self._predict_correct(phi, p.ckf_q, p.ckf_r, p._p0, dt, ax, ay, az, acc_n2, mx, my, mz, mag_n2)
+        if dx is not None:
+            for i in range(3):
+                x[i] += dx[i]
+                b[i] += dx[i + 3]
+        self._q = wrap_euler(x)
 
     @property
     def gyro_bias(self) -> tuple[float, float, float]:
         """Estimated gyro bias, rad/s, body frame."""
         return (self._b[0], self._b[1], self._b[2])
-
-    @property
-    def orientation_variance(self) -> tuple[float, float, float]:
-        """Diagonal of the angle-error covariance, rad²."""
-        p = self._p
-        return (max(p[0][0], _FIXED_FLOOR), max(p[1][1], _FIXED_FLOOR), max(p[2][2], _FIXED_FLOOR))
