@@ -341,7 +341,10 @@ def make_figures(results: dict[str, Any], out_dir: Path) -> list[str]:
     t = np.array(ts['t_s'])
     series = [k for k in ts if k not in ('t_s', 'dataset', 'reference')] + ['reference']
     styles = {
-        'reference': {'lw': 1.8, 'color': 'k', 'zorder': 5},
+        'reference': {'lw': 2.6, 'color': 'k', 'zorder': 5},
+        # drawn over the (thicker) reference: it would be hidden under it
+        'CCF ccf_ros (quaternion)': {'lw': 0.9, 'color': 'C1', 'zorder': 6},
+        'CCF paper (euler)': {'lw': 0.8, 'color': 'C0', 'zorder': 3},
         'accelerometer/magnetometer only': {'lw': 0.6, 'color': '0.6', 'zorder': 1},
         'gyro only': {'lw': 0.9, 'color': 'C2', 'zorder': 2},
     }
