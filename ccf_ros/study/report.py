@@ -138,7 +138,9 @@ def verdicts(results: dict[str, Any]) -> list[dict[str, Any]]:
                     f'{results["compute_time"]["repetitions"]} interleaved repetitions)',
             'ekf_ratio': r_ekf, 'ckf_ratio': r_ckf,
         })
-        if 'long_run' in results:
+        if 'long_run' not in results:
+            out.append({'claim': 6, 'formulation': form, 'verdict': 'not measured (--long-run-s 0)', 'text': ''})
+        else:
             lr = results['long_run']['filters'][CCF_LABEL[form]]['rmse_total_deg']
             k = max(1, len(lr) // 5)
             first, last = _mean(lr[1 : 1 + k] or lr[:k]), _mean(lr[-k:])
