@@ -148,6 +148,8 @@ def test_study_end_to_end_on_a_real_trial(short_trial: Path, tmp_path: Path, cap
         assert fits[name]['residual_rms_rad_end'] <= fits[name]['residual_rms_rad_start']
     # The grid: 4 Kp x 3 Ki x (NCF, CCF) x 2 forms, all scored on the same samples.
     assert len(res['grid'][name]) == 48
+    # Table 2b: the default time constants are the centre of the sensitivity grid.
+    assert res['sensitivity'][name]['1/1'] == res['methods'][name]['CCF ccf_ros (quaternion)']
     assert len({v['n_scored'] for v in res['grid'][name].values()}) == 1
     # Bode check: implementation == eqs 9/11/15 within 0.5 dB and 5 deg below fs/100.
     for case in res['bode']['cases']:

@@ -85,6 +85,21 @@ def gain_grid(ds: Dataset) -> dict[str, Any]:
     return out
 
 
+#: Factors applied to the ccf_ros default time constants in :func:`default_sensitivity`.
+SENSITIVITY_FACTORS = (1 / 3, 1.0, 3.0)
+
+
+def default_sensitivity(ds: Dataset) -> dict[str, Any]:
+    """The ccf_ros CCF with its time constants scaled around the defaults: ``tau_acc_s``/``tau_mag_s`` (together)
+    and ``tau_bias_s`` each by 1/3, 1, 3. Keys ``f_acc/f_bias``."""
+    out = {}
+    for fa in SENSITIVITY_FACTORS:
+        for fb in SENSITIVITY_FACTORS:
+            settings = {'filter': 'ccf', 'tau_acc_s': 3.0 * fa, 'tau_mag_s': 9.0 * fa, 'tau_bias_s': 60.0 * fb}
+            out[f'{fa:.3g}/{fb:.3g}'] = score(settings, ds)
+    return out
+
+
 def alpha_sweep(ds: Dataset) -> dict[str, Any]:
     """Fig 9: CCF at the paper's Kp, Ki over alpha 0.1-0.9, both formulations. Keys ``formulation/alpha``."""
     return {

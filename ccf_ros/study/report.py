@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from .experiments import ALPHA_GRID, FORMULATIONS, KI_GRID, KP_GRID, PAPER_ALPHA
+from .experiments import ALPHA_GRID, FORMULATIONS, KI_GRID, KP_GRID, PAPER_ALPHA, SENSITIVITY_FACTORS
 
 #: Thresholds of the verdicts (stated in the report).
 FLAT_REL = 0.20  # "barely changes": range of the mean error within 20 % of its median
@@ -35,6 +35,25 @@ def grid_means(results: dict[str, Any], form: str, kind: str, metric: str = 'tot
             key = f'{form}/{kind}/{kp:g}/{ki:g}'
             out[(kp, ki)] = _mean([g[key][metric] for g in results['grid'].values()])
     return out
+
+
+def sensitivity_means(results: dict[str, Any]) -> dict[str, float]:
+    """Mean total RMSE (deg) over datasets per ``f_acc/f_bias`` key of the default-sensitivity grid."""
+    keys = next(iter(results['sensitivity'].values())).keys()
+    return {k: _mean([v[k]['total_deg'] for v in results['sensitivity'].values()]) for k in keys}
+
+
+def sensitivity_table(results: dict[str, Any]) -> str:
+    names = list(results['sensitivity'])
+    rows = []
+    for fa in SENSITIVITY_FACTORS:
+        for fb in SENSITIVITY_FACTORS:
+            key = f'{fa:.3g}/{fb:.3g}'
+            cells = [results['sensitivity'][n][key] for n in names]
+            rows.append([f'{3 * fa:.3g} / {9 * fa:.3g}', f'{60 * fb:.3g}'] + [_cell(c) for c in cells]
+                        + [f'{_mean([c["total_deg"] for c in cells]):.2f} / '
+                           f'{_mean([c["mean_rmse_rad"] for c in cells]):.3f}'])
+    return _table(['tau_acc_s / tau_mag_s', 'tau_bias_s'] + [_short(n) for n in names] + ['mean'], rows)
 
 
 def lse_mean(results: dict[str, Any], form: str, metric: str = 'total_deg', key: str = 'score') -> float | None:
@@ -73,11 +92,16 @@ def verdicts(results: dict[str, Any]) -> list[dict[str, Any]]:
             v = 'holds only relative to the NCF: the CCF varies less than the NCF, but not "barely"'
         else:
             v = 'does not hold'
+        text = (f'CCF mean total RMSE over the 12 gains: {min(c_vals):.2f}-{max(c_vals):.2f} deg (range '
+                f'{c_range:.2f}, median {c_med:.2f}); NCF ({NCF_LABEL[form]}): {min(n_vals):.2f}-{max(n_vals):.2f} '
+                f'deg (range {n_range:.2f})')
+        if form == 'quaternion' and 'sensitivity' in results:
+            sens = list(sensitivity_means(results).values())
+            text += (f'. Its own time constants x1/3..x3 around the defaults: {min(sens):.2f}-{max(sens):.2f} deg '
+                     f'(Table 2b)')
         out.append({
             'claim': 1, 'formulation': form, 'verdict': v,
-            'text': (f'CCF mean total RMSE over the 12 gains: {min(c_vals):.2f}-{max(c_vals):.2f} deg (range '
-                     f'{c_range:.2f}, median {c_med:.2f}); NCF ({NCF_LABEL[form]}): {min(n_vals):.2f}-{max(n_vals):.2f} '
-                     f'deg (range {n_range:.2f})'),
+            'text': text,
             'ccf_range_deg': c_range, 'ncf_range_deg': n_range, 'ccf_median_deg': c_med,
         })
         lse = lse_mean(results, form)
@@ -456,6 +480,10 @@ def markdown(results: dict[str, Any], command: str = '') -> str:
         lines += [f'## Tables 1-2 ({form}): NCF and CCF over the gain grid, alpha = {PAPER_ALPHA}', '',
                   f'NCF ({NCF_LABEL[form]}):', '', grid_table(results, form, 'NCF'), '',
                   f'CCF ({CCF_LABEL[form]}):', '', grid_table(results, form, 'CCF'), '']
+    if 'sensitivity' in results:
+        lines += ['## Table 2b: the ccf_ros CCF around its own defaults (3 s / 9 s / 60 s)', '',
+                  'Time constants scaled by 1/3, 1 and 3 (the paper-gain mapping above covers a far wider range).', '',
+                  sensitivity_table(results), '']
     lines += ['## Table 3: LSE-fitted gains (in-sample, per dataset)', '', lscf_table(results), '',
               '## Figs 10-11: all methods (Table 4 parameters)', '', methods_table(results), '',
               '![Fig 10](fig10_methods_broad.png)', '', '![Fig 11](fig11_methods_paper.png)', '',

@@ -163,6 +163,7 @@ def run_study(
         tasks.append((f'grid/{d.name}', ex.gain_grid, (d,)))
         tasks.append((f'methods/{d.name}', ex.methods, (d,)))
         tasks.append((f'alpha/{d.name}', ex.alpha_sweep, (d,)))
+        tasks.append((f'sensitivity/{d.name}', ex.default_sensitivity, (d,)))
     if opts.long_run_s > 0:
         for label in ex.LONG_RUN_FILTERS:
             if label not in ('CKF', 'EKF'):
@@ -193,6 +194,7 @@ def run_study(
         ],
         'grid': {d.name: res[f'grid/{d.name}'] for d in datasets},
         'alpha': {d.name: res[f'alpha/{d.name}'] for d in datasets},
+        'sensitivity': {d.name: res[f'sensitivity/{d.name}'] for d in datasets},
         'methods': {d.name: res[f'methods/{d.name}'] for d in datasets},
         'bode': res['bode'],
         'timeseries': res['timeseries'],
