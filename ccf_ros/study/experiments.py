@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from ..core.metrics import error_angles
-from ..core.quaternion import quat_from_acc_mag, quat_from_rotvec, quat_to_euler, wrap_angle
+from ..core.quaternion import quat_from_acc_mag, quat_from_rotvec, quat_mul, quat_to_euler, wrap_angle
 from ..core.registry import make_filter
 from .datasets import Dataset, run_filter, score
 
@@ -133,7 +133,8 @@ def time_series(ds: Dataset, max_points: int = 4000) -> dict[str, Any]:
     steps = quat_from_rotvec(ds.gyr * dt[:, None])
     q_cur = np.asarray(q0, dtype=float)
     for k in range(k0, len(ds.t_s)):
-        q_cur = _qmul(q_cur, steps[k])
+        q_cur = quat_mul(q_cur, steps[k])
+        q_cur /= math.sqrt(float(q_cur @ q_cur))
         q_g[k] = q_cur
     idx = np.clip(np.searchsorted(ds.t_s, ds.t_ref[sel]), 0, len(ds.t_s) - 1)
     out['gyro only'] = quat_to_euler(q_g[idx])
@@ -145,20 +146,6 @@ def time_series(ds: Dataset, max_points: int = 4000) -> dict[str, Any]:
             out[key] = val.tolist()
     out['dataset'] = ds.name
     return out
-
-
-def _qmul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    pw, px, py, pz = p
-    qw, qx, qy, qz = q
-    r = np.array(
-        (
-            pw * qw - px * qx - py * qy - pz * qz,
-            pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw,
-        )
-    )
-    return r / math.sqrt(float(r @ r))
 
 
 #: Figs 15-16: filters of the long run.
