@@ -16,7 +16,7 @@ import numpy as np
 from ccf_ros.core import run_batch
 from ccf_ros.core.metrics import summarize
 from ccf_ros.offline.bagio import read_bools, read_imu_arrays, read_orientations
-from ccf_ros.offline.evaluate import align
+from ccf_ros.offline.evaluate import align, mask_at
 from ccf_ros.settings import build
 
 DEFAULT_SHARED = Path(__file__).resolve().parents[2] / 'shared' / 'data' / 'broad'
@@ -26,9 +26,7 @@ def run_trial(args: tuple[Path, list[int], dict[str, str]]) -> tuple[str, dict[i
     trial, steps, settings = args
     imu = read_imu_arrays(trial)
     t_ref, q_ref = read_orientations(trial, '/ground_truth/pose')
-    t_m, moving = read_bools(trial, '/ground_truth/moving')
-    k = np.clip(np.searchsorted(t_m, t_ref + 1e-6, side='right') - 1, 0, None)
-    mask = moving[k]
+    mask = mask_at(t_ref, *read_bools(trial, '/ground_truth/moving'))
     out = {}
     for step in steps:
         sl = slice(None, None, step)

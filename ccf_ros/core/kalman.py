@@ -182,7 +182,7 @@ def _measurement(
     return [(xa[i] - x[i] + _PI) % _TWO_PI - _PI for i in idx], idx
 
 
-_FIXED_FLOOR = 1e-12
+_VARIANCE_FLOOR = 1e-12
 
 
 class _EulerKalman(OrientationFilter):
@@ -214,7 +214,7 @@ class _EulerKalman(OrientationFilter):
     def orientation_variance(self) -> tuple[float, float, float]:
         """Diagonal of the angle (error) covariance, rad²."""
         p = self._p
-        return (max(p[0][0], _FIXED_FLOOR), max(p[1][1], _FIXED_FLOOR), max(p[2][2], _FIXED_FLOOR))
+        return (max(p[0][0], _VARIANCE_FLOOR), max(p[1][1], _VARIANCE_FLOOR), max(p[2][2], _VARIANCE_FLOOR))
 
 
 class Ekf(_EulerKalman):

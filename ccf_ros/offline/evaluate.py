@@ -55,6 +55,15 @@ def align(
     return out
 
 
+def mask_at(t_ref: np.ndarray, t_mask: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """``(M,)`` value of a Bool topic (``t_mask`` s, ``values``) in force at each reference stamp ``t_ref`` (s);
+    False before its first message, all True if it has none."""
+    if len(t_mask) == 0:
+        return np.ones(len(t_ref), dtype=bool)
+    k = np.searchsorted(t_mask, t_ref + 1e-6, side='right') - 1
+    return np.where(k >= 0, values[np.clip(k, 0, None)], False)
+
+
 def load_aligned(
     bag: str | Path,
     reference: str,
@@ -72,10 +81,7 @@ def load_aligned(
         raise BagError(f'no messages on reference topic {reference}')
     mask = np.ones(len(t_ref), dtype=bool)
     if mask_topic:
-        t_m, v_m = read_bools(reference_bag or bag, mask_topic)
-        if len(t_m):
-            k = np.searchsorted(t_m, t_ref + 1e-6, side='right') - 1
-            mask = np.where(k >= 0, v_m[np.clip(k, 0, None)], False)
+        mask = mask_at(t_ref, *read_bools(reference_bag or bag, mask_topic))
     return Aligned(t_s=t_ref, q_est=align(t_est, q_est, t_ref, q_ref), q_ref=q_ref, mask=mask)
 
 

@@ -12,7 +12,7 @@ from ..core import run_batch
 from ..core.metrics import summarize
 from ..core.registry import make_filter
 from ..offline.bagio import BagError, read_bools, read_imu_arrays, read_orientations
-from ..offline.evaluate import align
+from ..offline.evaluate import align, mask_at
 from ..offline.simulate import SimData
 
 
@@ -70,13 +70,10 @@ def load_bag(path: str | Path, topics: Topics = Topics()) -> Dataset:
     mask = np.ones(len(t_ref), dtype=bool)
     if topics.mask:
         try:
-            t_m, v_m = read_bools(path, topics.mask)
+            mask = mask_at(t_ref, *read_bools(path, topics.mask))
         except BagError:
-            t_m = np.zeros(0)
-        if len(t_m):
-            k = np.searchsorted(t_m, t_ref + 1e-6, side='right') - 1
-            mask = np.where(k >= 0, v_m[np.clip(k, 0, None)], False)
-    return Dataset(path.name.rstrip('/'), imu.t_s, imu.gyr, imu.acc, imu.mag, t_ref, q_ref, mask)
+            pass  # an optional topic: no mask, every reference sample is scored
+    return Dataset(path.name, imu.t_s, imu.gyr, imu.acc, imu.mag, t_ref, q_ref, mask)
 
 
 def from_sim(name: str, sim: SimData) -> Dataset:

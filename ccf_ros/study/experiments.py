@@ -118,11 +118,8 @@ def time_series(ds: Dataset, max_points: int = 4000) -> dict[str, Any]:
     step = max(1, len(ds.t_ref) // max_points)
     sel = np.arange(0, len(ds.t_ref), step)
     out: dict[str, Any] = {'t_s': (ds.t_ref[sel] - ds.t_ref[0]).tolist(), 'reference': quat_to_euler(ds.q_ref[sel])}
-    for label, settings in (
-        ('CCF ccf_ros (quaternion)', METHODS['CCF ccf_ros (quaternion)']),
-        ('CCF paper (euler)', METHODS['CCF paper (euler)']),
-    ):
-        q, _, _ = run_filter(settings, ds)
+    for label in ('CCF ccf_ros (quaternion)', 'CCF paper (euler)'):
+        q, _, _ = run_filter(METHODS[label], ds)
         out[label] = quat_to_euler(q[sel])
     # Gyro only: integrate from the first reference orientation (exact rotation per sample).
     k0 = int(np.searchsorted(ds.t_s, ds.t_ref[0]))
@@ -150,11 +147,7 @@ def time_series(ds: Dataset, max_points: int = 4000) -> dict[str, Any]:
 
 #: Figs 15-16: filters of the long run.
 LONG_RUN_FILTERS: dict[str, dict[str, Any]] = {
-    'CCF ccf_ros (quaternion)': {'filter': 'ccf'},
-    'CCF paper (euler)': {'filter': 'ccf', 'formulation': 'euler'},
-    'NCF': {'filter': 'ncf'},
-    'EKF': {'filter': 'ekf'},
-    'CKF': {'filter': 'ckf'},
+    k: METHODS[k] for k in ('CCF ccf_ros (quaternion)', 'CCF paper (euler)', 'NCF', 'EKF', 'CKF')
 }
 
 
@@ -190,12 +183,7 @@ def long_run(ds: Dataset, label: str, window_s: float = 100.0) -> dict[str, Any]
 def compute_time(ds: Dataset, repetitions: int = 20, n_samples: int = 2860) -> dict[str, Any]:
     """Fig 12: time per ``update()`` (µs) of CCF (both forms), EKF and CKF over the first ``n_samples`` samples,
     ``repetitions`` times, the filters interleaved within each repetition so that machine load hits all alike."""
-    labels = {
-        'CCF paper (euler)': METHODS['CCF paper (euler)'],
-        'CCF ccf_ros (quaternion)': METHODS['CCF ccf_ros (quaternion)'],
-        'EKF': METHODS['EKF'],
-        'CKF': METHODS['CKF'],
-    }
+    labels = {k: METHODS[k] for k in ('CCF paper (euler)', 'CCF ccf_ros (quaternion)', 'EKF', 'CKF')}
     n = min(n_samples, len(ds.t_s))
     t = ds.t_s[:n].tolist()
     g = ds.gyr[:n].tolist()

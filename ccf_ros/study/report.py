@@ -64,10 +64,16 @@ def lse_mean(results: dict[str, Any], form: str, metric: str = 'total_deg', key:
     return _mean([v[key][metric] for v in results['lscf'][form].values()])
 
 
-def method_means(results: dict[str, Any], metric: str = 'total_deg') -> dict[str, float]:
+def method_labels(results: dict[str, Any]) -> list[str]:
+    """Every method label of the results, in first-seen order (LSCF exists only where it was fitted)."""
     labels: list[str] = []
     for per in results['methods'].values():
         labels += [k for k in per if k not in labels]
+    return labels
+
+
+def method_means(results: dict[str, Any], metric: str = 'total_deg') -> dict[str, float]:
+    labels = method_labels(results)
     return {k: _mean([per[k][metric] for per in results['methods'].values() if k in per]) for k in labels}
 
 
@@ -268,9 +274,7 @@ def _residuals(fit: dict[str, Any]) -> str:
 
 def methods_table(results: dict[str, Any]) -> str:
     names = list(results['methods'])
-    labels: list[str] = []
-    for per in results['methods'].values():
-        labels += [k for k in per if k not in labels]
+    labels = method_labels(results)
     rows = []
     for label in labels:
         cells = [results['methods'][n].get(label) for n in names]
@@ -332,9 +336,7 @@ def make_figures(results: dict[str, Any], out_dir: Path) -> list[str]:
     save(fig, 'fig09_alpha.png')
 
     names = list(results['methods'])
-    labels: list[str] = []
-    for per in results['methods'].values():
-        labels += [k for k in per if k not in labels]
+    labels = method_labels(results)
     for fig_name, metric, ylabel in (('fig10_methods_broad.png', 'total_deg', 'total RMSE (BROAD), deg'),
                                      ('fig11_methods_paper.png', 'mean_rmse_rad', 'mean RMSE (paper eq 17), rad')):
         fig, ax = plt.subplots(figsize=(12, 4.5))
