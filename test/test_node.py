@@ -59,9 +59,11 @@ class Harness:
     def wait_connected(self, timeout=10.0):
         deadline = time.time() + timeout
         while time.time() < deadline and (self.pub_imu.get_subscription_count() == 0
+                                          or self.pub_mag.get_subscription_count() == 0
                                           or self.io.count_publishers('imu/data') == 0):
             self.ex.spin_once(timeout_sec=0.05)
-        assert self.pub_imu.get_subscription_count() > 0, 'node did not subscribe'
+        assert self.pub_imu.get_subscription_count() > 0 and self.pub_mag.get_subscription_count() > 0, \
+            'node did not subscribe'
 
     def feed(self, messages, n_expected, timeout=60.0, n_bias=0):
         for i, (topic, msg) in enumerate(messages):

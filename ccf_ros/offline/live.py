@@ -104,9 +104,9 @@ def run_live(bag: Path, rate: float = 4.0, timeout_s: float = 120.0, node_qos: s
             if proc.poll() is not None:
                 raise RuntimeError(f'ccf_node exited: {proc.stderr.read() if proc.stderr else ""}')
             time.sleep(0.05)
-        time.sleep(0.5)
+        # Both input topics matched (each on its own): a lost first magnetometer sample changes the initial heading.
         play(node, {'/imu/data_raw': types['/imu/data_raw'], '/imu/mag': types['/imu/mag']}, messages, rate=rate,
-             qos_depth=10000)
+             qos_depth=10000, wait_matched_s=30.0)
         # Done when every sample is answered, or when nothing more arrives (skipped samples never will).
         deadline = time.time() + timeout_s
         last_n, quiet_since = -1, time.time()

@@ -53,10 +53,13 @@ def play(
     clock: bool = False,
     should_stop: Callable[[], bool] = lambda: False,
     progress: Callable[[int], None] | None = None,
+    wait_matched_s: float = 0.0,
 ) -> int:
     """Publish ``messages`` from ``node`` at recorded timing scaled by ``rate`` (2.0 = twice as fast).
 
     Returns the number of messages published. With ``clock`` it also publishes ``/clock`` (for use_sim_time).
+    With ``wait_matched_s`` > 0 it first waits (up to that long, s) until every topic's publisher is matched with
+    a subscriber: DDS drops what a publisher sends before it is matched, and each topic matches on its own.
     """
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
@@ -70,6 +73,11 @@ def play(
 
         clock_pub = node.create_publisher(Clock, '/clock', 10)
         clock_msg = Clock()
+    deadline = time.monotonic() + wait_matched_s
+    while time.monotonic() < deadline and any(pub.get_subscription_count() == 0 for pub in pubs.values()):
+        if should_stop():
+            return 0
+        time.sleep(0.01)
     n = 0
     if not messages:
         return 0
