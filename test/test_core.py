@@ -181,3 +181,144 @@ def test_config_file_lists_every_parameter_with_its_default():
     from ccf_ros.settings import config_yaml
 
     assert (Path(__file__).resolve().parents[1] / 'config' / 'ccf.yaml').read_text() == config_yaml()
+
+
+# --- the NCF -> LCF cascade (default) -------------------------------------------------------------------------------
+
+
+def _cascade_response(p: CcfParams, f_hz: float, kind: str, rate_hz: float = 100.0) -> complex:
+    """Measured complex gain of one tilt axis: from the accelerometer roll angle (``acc``) or from the roll rate
+    (``rate``, rad per rad/s), gyro otherwise silent, no magnetometer."""
+    from ccf_ros.core.ccf import GRAVITY_M_S2
+
+    amp = 0.05 if kind == 'acc' else 0.05 * 2 * math.pi * f_hz
+    settle = max(3.0 / f_hz, 6.0 * max(p.tau_bias_s, p.tau_acc_s + p.tau_acc_lp_s))
+    fit = math.ceil(max(4.0 / f_hz, 10.0) * f_hz) / f_hz
+    n = int(round((settle + fit) * rate_hz))
+    t = np.arange(n) / rate_hz
+    sig = amp * np.sin(2 * np.pi * f_hz * t)
+    zero = np.zeros(n)
+    if kind == 'acc':
+        gyr = np.stack((zero, zero, zero), 1)
+        acc = GRAVITY_M_S2 * np.stack((zero, np.sin(sig), np.cos(sig)), 1)
+    else:
+        gyr = np.stack((sig, zero, zero), 1)
+        acc = np.tile([0.0, 0.0, GRAVITY_M_S2], (n, 1))
+    q = run_batch(QuaternionCcf(p), t, gyr, acc).quat
+    roll = np.arctan2(2 * (q[:, 0] * q[:, 1] + q[:, 2] * q[:, 3]), 1 - 2 * (q[:, 1] ** 2 + q[:, 2] ** 2))
+    sel = t >= t[-1] - fit
+    ts = t[sel]
+    basis = np.stack((np.sin(2 * np.pi * f_hz * ts), np.cos(2 * np.pi * f_hz * ts), np.ones_like(ts), ts - ts[0]), 1)
+    coef, *_ = np.linalg.lstsq(basis, roll[sel], rcond=None)
+    return complex(coef[0], coef[1]) / amp
+
+
+@pytest.mark.parametrize('kind', ['acc', 'rate'])
+@pytest.mark.parametrize('f_hz', [0.005, 0.05, 0.3, 1.0])
+def test_cascade_matches_its_small_angle_transfer_function(kind, f_hz):
+    """The default is a genuine NCF -> LCF cascade: its measured response is the derived one (ccf.tilt_transfer),
+    which differs from a single PI stage, below fs/100 within 0.5 dB / 5 deg."""
+    from ccf_ros.core.ccf import tilt_transfer
+
+    p = CcfParams(use_mag=False, rest_bias=False, max_dt_s=1.0)
+    h = _cascade_response(p, f_hz, kind)
+    h_a, h_w = tilt_transfer(p, f_hz)
+    ref = h_a if kind == 'acc' else h_w
+    assert 20 * math.log10(abs(h)) == pytest.approx(20 * math.log10(abs(ref)), abs=0.5)
+    assert np.degrees(np.angle(h / ref)) == pytest.approx(0.0, abs=5.0)
+    # A single PI stage (the NCF alone, eq 11, as the previous default was) lets far more acceleration through.
+    if kind == 'acc' and f_hz == 0.3:
+        s = 2j * math.pi * f_hz
+        kn, ki = 1 / p.tau_ncf_s, 1 / (p.tau_ncf_s * p.tau_bias_s)
+        single = (kn * s + ki) / (s * s + kn * s + ki)
+        assert 20 * math.log10(abs(single)) - 20 * math.log10(abs(h)) > 10.0  # measured 12.2 dB
+
+
+def test_bias_is_learnt_while_moving_without_rest():
+    """Rest detection off, a constant 1 deg/s bias on every axis, hand-held motion (9-D): the NCF learns it."""
+    d = generate(300.0, 200.0, seed=2, bias_init_rad_s=0.0, bias_walk_rad_s_sqrt_s=0.0, rest_s=0.0)
+    b_true = np.radians([1.0, -1.0, 1.0])
+    r = run_batch(make_filter({'rest_bias': False}), d.t_s, d.gyr + b_true, d.acc, d.mag)
+    err = np.degrees(np.abs(r.bias - b_true)).max(axis=1)
+    t = d.t_s - d.t_s[0]
+    assert err[t < 30].max() > 0.5  # it starts far off ...
+    assert err[t >= 150].max() < 0.1, err[t >= 150].max()  # ... and is within 0.1 deg/s after 150 s (measured 121 s)
+
+
+def test_bias_estimate_is_clamped_per_axis():
+    d = generate(60.0, 200.0, seed=4, rest_s=5.0)
+    big = np.radians([5.0, -5.0, 5.0])
+    f = make_filter({'bias_max_rad_s': math.radians(2.0)})
+    r = run_batch(f, d.t_s, d.gyr + big, d.acc, d.mag)
+    assert np.all(np.abs(r.bias[r.answered]) <= math.radians(2.0) + 1e-15)
+    assert np.max(np.abs(r.bias)) == pytest.approx(math.radians(2.0))
+
+
+def test_magnetometer_along_gravity_at_start_gives_no_nan():
+    f = QuaternionCcf()
+    up = (0.0, 0.0, 9.81)
+    assert f.update(0.0, (0.0, 0.0, 0.0), up, (0.0, 0.0, -45e-6)) == Status.INITIALIZED
+    assert all(math.isfinite(v) for v in f.quaternion)
+    for k in range(1, 500):
+        f.update(0.01 * k, (0.0, 0.0, 0.01), up, (0.0, 20e-6, -40e-6))
+    assert all(math.isfinite(v) for v in f.quaternion) and f.flags.heading_absolute
+
+
+def test_magnetometer_reference_is_learnt_after_an_initialisation_without_magnetometer():
+    """No magnetometer at initialisation, then a steady field, then a magnet: the disturbance is still caught."""
+    f = QuaternionCcf()
+    g, up, field = (0.0, 0.0, 0.0), (0.0, 0.0, 9.81), (0.0, 20e-6, -40e-6)
+    f.update(0.0, g, up, None)
+    for k in range(1, 300):
+        f.update(0.01 * k, g, up, field)
+    assert f.flags.mag_used and not f.flags.mag_disturbed
+    f.update(3.0, g, up, (15e-6, 35e-6, -40e-6))  # a magnet nearby
+    assert f.flags.mag_disturbed and not f.flags.mag_used
+
+
+def test_6d_gap_relevels_the_tilt_but_keeps_the_heading():
+    d = generate(40.0, 200.0, seed=6)
+    f = make_filter({'use_mag': False})
+    n = len(d.t_s) // 2
+    a = run_batch(f, d.t_s[:n], d.gyr[:n], d.acc[:n])
+    yaw_before = math.atan2(2 * (a.quat[-1, 0] * a.quat[-1, 3] + a.quat[-1, 1] * a.quat[-1, 2]),
+                            1 - 2 * (a.quat[-1, 2] ** 2 + a.quat[-1, 3] ** 2))
+    # 2 s later (a gap longer than max_dt_s), the IMU at the orientation it had just before the gap, tilted by 10 deg.
+    tilt = 0.17
+    acc = quat_rotate(np.array([math.cos(tilt / 2), math.sin(tilt / 2), 0.0, 0.0]), [0.0, 0.0, 9.81])
+    assert f.update(d.t_s[n - 1] + 2.0, (0.0, 0.0, 0.0), tuple(acc), None) == Status.REINITIALIZED_AFTER_GAP
+    q = f.quaternion
+    yaw_after = math.atan2(2 * (q[0] * q[3] + q[1] * q[2]), 1 - 2 * (q[2] ** 2 + q[3] ** 2))
+    up_body = quat_rotate(np.array(q) * [1, -1, -1, -1], [0.0, 0.0, 1.0])
+    np.testing.assert_allclose(up_body, acc / np.linalg.norm(acc), atol=1e-9)  # tilt re-levelled exactly
+    assert abs(math.remainder(yaw_after - yaw_before, 2 * math.pi)) < math.radians(12.0)  # heading kept (~tilt)
+
+
+def test_nonfinite_state_reinitialises_and_is_counted(sim, monkeypatch):
+    f = QuaternionCcf()
+    r = run_batch(f, sim.t_s[:200], sim.gyr[:200], sim.acc[:200], sim.mag[:200])
+    step = QuaternionCcf._step
+
+    def broken(self, *args):
+        step(self, *args)
+        self._q = (float('nan'),) * 4
+
+    monkeypatch.setattr(QuaternionCcf, '_step', broken)
+    assert f.update(float(sim.t_s[200]), tuple(sim.gyr[200]), tuple(sim.acc[200]), tuple(sim.mag[200])) == 2
+    monkeypatch.setattr(QuaternionCcf, '_step', step)
+    assert f.n_nonfinite_resets == 1 and all(math.isfinite(v) for v in f.quaternion)
+    assert r.answered.all()
+
+
+def test_flags_are_one_read_only_structure_on_every_filter(sim):
+    from ccf_ros.core.base import FilterFlags
+    from ccf_ros.core.registry import FILTERS
+
+    for kind, formulation in FILTERS:
+        f = make_filter({'filter': kind, 'formulation': formulation})
+        assert f.flags == FilterFlags(False, False, False, False, False, False)
+        run_batch(f, sim.t_s[:400], sim.gyr[:400], sim.acc[:400], sim.mag[:400])
+        flags = f.flags
+        assert isinstance(flags, FilterFlags) and flags.initialized and flags.acc_used
+        with pytest.raises(AttributeError):
+            flags.at_rest = True  # type: ignore[misc]

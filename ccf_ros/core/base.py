@@ -18,6 +18,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import IntEnum
+from typing import NamedTuple
 
 from .quaternion import WORLD_FRAMES
 
@@ -35,6 +36,26 @@ class Status(IntEnum):
 
 #: ``status < ANSWERED_BELOW`` means the sample has an orientation output.
 ANSWERED_BELOW = int(Status.SKIPPED_BAD_GYRO)
+
+
+class FilterFlags(NamedTuple):
+    """What the filter knows about its own state after the latest sample (read-only; see :attr:`~OrientationFilter.flags`).
+
+    Attributes:
+        initialized: an orientation exists (False until the first sample with a usable accelerometer).
+        at_rest: the IMU is detected at rest (the gyro bias is then learnt from the gyro directly).
+        acc_used: the latest accelerometer sample was usable; False: gyro-only propagation.
+        mag_used: the latest magnetometer sample corrected the heading.
+        mag_disturbed: the magnetometer disagrees with its reference field; heading runs on the gyro.
+        heading_absolute: heading is referenced to magnetic north (False: 6-D, heading relative to the start).
+    """
+
+    initialized: bool
+    at_rest: bool
+    acc_used: bool
+    mag_used: bool
+    mag_disturbed: bool
+    heading_absolute: bool
 
 
 def check_positive(name: str, value: float) -> None:
@@ -83,7 +104,7 @@ class OrientationFilter(ABC):
     # Slots: attribute access on the per-sample path is measurably faster than through __dict__.
     __slots__ = (
         'params', '_frame', '_identity_frame', '_use_mag', '_max_dt', '_t_last', 'initialized', '_q', 'counts',
-        'n_no_acc', 'n_no_mag',
+        'n_no_acc', 'n_no_mag', 'n_nonfinite_resets', '_t_no_acc', '_t_no_mag', 'at_rest', 'mag_disturbed',
     )
     params: CommonParams
 
@@ -119,6 +140,14 @@ class OrientationFilter(ABC):
         self.counts = [0] * len(Status)
         self.n_no_acc = 0
         self.n_no_mag = 0
+        #: times the state became non-finite (a bug or absurd input) and the filter re-initialised instead
+        self.n_nonfinite_resets = 0
+        # Stamps of the latest samples without a usable accelerometer / magnetometer (flags at no per-sample cost).
+        self._t_no_acc = -math.inf
+        self._t_no_mag = -math.inf
+        #: set by filters that detect rest / magnetic disturbances (see :class:`FilterFlags`)
+        self.at_rest = False
+        self.mag_disturbed = False
         self._reset_state()
 
     @abstractmethod
@@ -181,18 +210,31 @@ class OrientationFilter(ABC):
         if not (acc_n2 > 1e-12 and acc_n2 - acc_n2 == 0.0):
             acc_n2 = 0.0
             self.n_no_acc += 1
+            self._t_no_acc = t_s
         if mag is not None and self._use_mag:
             mx, my, mz = mag
             mag_n2 = mx * mx + my * my + mz * mz
             if not (mag_n2 > 1e-30 and mag_n2 - mag_n2 == 0.0):
                 mag_n2 = 0.0
                 self.n_no_mag += 1
+                self._t_no_mag = t_s
         else:
             mx = my = mz = mag_n2 = 0.0
+            self._t_no_mag = t_s
         if dt <= self._max_dt and self.initialized:
             self._step(dt, gx, gy, gz, ax, ay, az, acc_n2, mx, my, mz, mag_n2)
-            self.counts[0] += 1
-            return 0
+            w = self._q[0]
+            if w - w == 0.0:
+                self.counts[0] += 1
+                return 0
+            # Non-finite state (should never happen): start over from this sample rather than publish NaN.
+            self.n_nonfinite_resets += 1
+            self.initialized = False
+            self._q = (1.0, 0.0, 0.0, 0.0)
+            self._reset_state()
+            status = 2
+        else:
+            status = 2 if self.initialized else 1
         if acc_n2 == 0.0:
             if self.initialized:
                 # After a gap without a usable accelerometer: hold, do not integrate across the gap.
@@ -200,7 +242,6 @@ class OrientationFilter(ABC):
                 return 0
             self.counts[5] += 1
             return 5
-        status = 2 if self.initialized else 1
         self._init(ax, ay, az, mx, my, mz, mag_n2 != 0.0)
         self.initialized = True
         self.counts[status] += 1
@@ -219,6 +260,22 @@ class OrientationFilter(ABC):
             pw * qy - px * qz + py * qw + pz * qx,
             pw * qz + px * qy - py * qx + pz * qw,
         )
+
+    @property
+    def flags(self) -> FilterFlags:
+        """Read-only state flags after the latest sample (see :class:`FilterFlags`)."""
+        return FilterFlags(
+            initialized=self.initialized,
+            at_rest=self.at_rest,
+            acc_used=self.initialized and self._t_no_acc != self._t_last,
+            mag_used=self.initialized and self._t_no_mag != self._t_last and not self.mag_disturbed,
+            mag_disturbed=self.mag_disturbed,
+            heading_absolute=self._use_mag and self._heading_absolute(),
+        )
+
+    def _heading_absolute(self) -> bool:
+        """Whether the heading has been referenced to magnetic north since the last (re)initialisation."""
+        return self._t_no_mag != self._t_last
 
     @property
     @abstractmethod

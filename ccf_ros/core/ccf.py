@@ -1,64 +1,111 @@
-"""Cascaded complementary filter on unit quaternions (the ccf_ros default).
+"""Cascaded complementary filter on unit quaternions (the ccf_ros default): an NCF stage feeding an LCF stage.
 
-The cascade of Narkhede et al. (Sensors 2021) kept, made to work in 3-D at any sample rate:
+The cascade of Narkhede et al. (Sensors 2021) — a PI stage (NCF) that estimates the gyroscope bias, followed by a
+linear complementary stage (LCF) that integrates the bias-corrected rate and blends it with the
+accelerometer/magnetometer attitude — made to work in 3-D, at any sample rate, under linear acceleration:
 
-1. **NCF stage (PI bias estimator).** The error between the current estimate and the accelerometer/magnetometer
-   attitude drives an integral term that estimates the gyroscope bias (the paper's ``Ki/s``). While the IMU rests,
-   the bias is instead pulled towards the low-passed gyro reading, which is far more informative.
-2. **LCF stage (blend).** The bias-corrected rate is integrated and blended with the accelerometer/magnetometer
-   attitude. The paper's per-sample weight ``alpha`` (and ``Kp``, which acts the same way) become *time constants*:
-   with ``k = 1 - exp(-dt / tau)`` the blend is identical at 50 Hz and at 1 kHz. Equivalently, the paper's ``alpha``
-   at sample period ``T`` is ``tau = alpha * T / (1 - alpha)``.
+0. **Accelerometer low-pass in an almost-inertial frame** (linear-acceleration rejection). The specific force is
+   low-passed (time constant ``tau_acc_lp_s``) in the frame that the bias-corrected gyro carries along: the filter
+   state ``g_lp`` (m/s², body frame) is rotated with every gyro step before the new sample is blended in. Gravity
+   is constant in that frame, so it passes unattenuated and without lag, while linear accelerations — whose
+   integral is a bounded velocity change — average out. (The idea is VQF's, Laidig & Seel 2023; the code is ours.)
+   ``g_lp`` is "the accelerometer attitude" both stages see.
+1. **NCF (bias stage).** Its own attitude ``exp(dn) ⊗ q`` (``dn``: small horizontal world-frame rotation from the LCF
+   attitude: the NCF corrects tilt only) is integrated from the same bias-corrected gyro and corrected towards ``g_lp`` with a proportional gain
+   ``1/tau_ncf_s``; the integral of its error, gain ``1/(tau_ncf_s * tau_bias_s)``, is the gyro-bias estimate. With
+   ``tau_bias_s >= 4 tau_ncf_s`` the bias loop is (over)damped and a bias converges with a time constant of about
+   ``tau_bias_s`` while moving. At rest the bias is instead pulled to the low-passed gyro (much more informative).
+2. **LCF (output stage).** The published attitude ``q`` integrates the bias-corrected rate and is blended towards
+   ``g_lp`` (inclination, time constant ``tau_acc_s``) and towards the magnetometer heading (rotation about world
+   up only, ``tau_mag_s``), so a magnetic disturbance never tilts the estimate. A field whose norm or dip departs from
+   the reference learnt after the (re)initialisation is ignored for heading until it agrees again (or stays steady
+   for ``mag_reaccept_s``: a new normal).
 
-Inclination is corrected from the accelerometer only and heading from the magnetometer only (about world up), so a
-magnetic disturbance never tilts the estimate. A magnetometer whose norm or dip angle departs from the values learnt
-while it looked undisturbed is ignored for heading until it agrees again.
+Small-angle transfer functions (one tilt axis; ``k_f = 1/tau_acc_lp_s``, ``K_n = 1/tau_ncf_s``,
+``K_i = 1/(tau_ncf_s tau_bias_s)``, ``K_a = 1/tau_acc_s``, ``P = (s + k_f)(s + K_n)``, ``Q = s P + K_i k_f``), from the
+accelerometer angle ``x_a`` and from the measured rate ``w`` to the output ``x`` (see :func:`tilt_transfer`)::
+
+    H_a(s) = (K_a k_f Q + K_i k_f s (s + k_f + K_a)) / ((s + k_f)(s + K_a) Q)
+    H_w(s) = s (s + k_f + K_a) P / ((s + k_f)(s + K_a) Q)        with s H_w + H_a = 1 (complementary)
+
+Without the NCF (``K_i = 0``) ``H_a = k_f K_a / ((s + k_f)(s + K_a))``: linear accelerations are attenuated at
+12 dB/octave, twice the rate of a single blend. The per-sample gains ``1 - exp(-dt/tau)`` make the defaults behave
+the same at 40 Hz and at 1 kHz.
+
+The gyro step uses the rectangle rule (rate of the current sample over the last interval), which puts the integrated
+frame half a step ahead of the sample instant; the accelerometer sample is rotated back by that half step before it
+is blended (a first-order correction that matters at low rates and fast rotation).
+
+Reported covariance: continuous-time, so it does not depend on the sample rate. Inclination and heading variances
+are a floor (``incl_sigma_rad``, ``heading_sigma_rad``) plus a drift variance that grows while that correction is
+missing (accelerometer unusable; magnetometer absent, disturbed or off) from the gyro noise and the bias
+uncertainty, and shrinks with the blend's time constant once corrected. Without a magnetometer the heading variance
+is the drift since the heading was last known (relative heading, as a 6-D filter can only give).
 """
 
 from __future__ import annotations
 
+import cmath
 import math
 from dataclasses import dataclass
 from math import atan2, cos, sin, sqrt
 
 from .base import CommonParams, OrientationFilter, check_positive, check_range
-from .quaternion import quat_from_acc_mag
+from .quaternion import Quat, level_quat, quat_from_acc_mag_scalar, relevel
 
 _DEG = math.pi / 180.0
+#: Standard gravity, m/s² (REP-145 accelerometers read +g up at rest).
+GRAVITY_M_S2 = 9.80665
+_INV_G = 1.0 / GRAVITY_M_S2
+#: Largest NCF heading error used, rad (see _step).
+_HEAD_ERR_MAX = 5.0 * _DEG
 
 
 @dataclass(frozen=True)
 class CcfParams(CommonParams):
-    """Parameters of :class:`QuaternionCcf`. Defaults are meant to need no tuning.
+    """Parameters of :class:`QuaternionCcf`. Defaults are chosen from plateaus and physics, meant to need no tuning.
 
     Attributes:
-        tau_acc_s: LCF time constant of the inclination (accelerometer) blend, s. Longer rejects more linear
-            acceleration, shorter follows a drifting gyro faster. Default 3.0.
-        tau_mag_s: LCF time constant of the heading (magnetometer) blend, s. Default 9.0.
-        tau_bias_s: NCF integral time constant, s: bias gain ``Ki = 1 / tau_bias_s**2`` on the attitude error
-            (rad) while moving. The bias then converges with a time constant of about ``tau_bias_s**2 / tau_acc_s``
-            (20 min at the defaults): slow on purpose, as faster learning while moving lets linear accelerations
-            into the bias (``ccf study`` shows both sides). At rest the bias is learnt within seconds. Default 60.0.
-        rest_bias: estimate the bias from the gyro directly while the IMU rests. Default True.
+        tau_acc_s: LCF: time constant of the inclination blend towards the filtered gravity, s. Default 2.5.
+        tau_mag_s: LCF: time constant of the heading blend towards the magnetometer, s. Default 9.0.
+        tau_acc_lp_s: time constant of the accelerometer low-pass in the gyro-carried (almost inertial) frame, s.
+            Together with ``tau_acc_s`` it attenuates linear accelerations at 12 dB/octave. Default 2.5.
+        tau_ncf_s: NCF: time constant of its proportional correction, s. Default 10.
+        tau_bias_s: NCF: integral time constant, s (gain ``1/(tau_ncf_s tau_bias_s)``); a constant bias is learnt
+            while moving with a time constant of about this (critically damped at ``4 tau_ncf_s``). Default 40.
+        motion_bias: learn the bias while moving (the NCF integral). Default True.
+        rest_bias: learn the bias from the gyro directly while the IMU rests. Default True.
         rest_gyro_rad_s: rest when the gyro stays within this of its low-passed value, rad/s. Default 2°/s.
-        rest_acc_m_s2: ... and the accelerometer within this of its low-passed value, m/s². Default 0.5.
+        rest_acc_m_s2: ... and the accelerometer within this of the filtered gravity, m/s². Default 0.5.
         rest_min_s: for at least this long, s. Default 1.5.
-        rest_tau_s: time constant of the rest-detection low-pass filters and of the rest bias estimate, s.
-            Default 0.5.
-        bias_max_rad_s: largest bias the filter will believe, rad/s (also: faster low-passed rotation is never
-            taken for rest). Default 2°/s.
+        rest_tau_s: time constant of the rest low-pass and of the rest bias update, s. Default 0.5.
+        bias_max_rad_s: the bias estimate is clamped to ±this per axis (anti-windup), rad/s; a low-passed rotation
+            faster than this is never taken for rest. Default 2°/s.
         mag_norm_tol: relative deviation of the magnetometer norm from its reference that counts as disturbed.
             Default 0.05 (a calibrated magnetometer stays well within it).
         mag_dip_tol_rad: deviation of the magnetic dip angle that counts as disturbed, rad. Default 5°.
-        gyro_noise_rad_s: gyro noise standard deviation per sample, rad/s; only feeds the reported covariance.
-            Default 0.005.
         mag_reaccept_s: a different field that stays steady (within the tolerances) this long becomes the new
             reference, s: a moved robot or a new mounting does not disable heading forever. Default 60.
+        incl_sigma_rad: reported inclination standard deviation while the accelerometer corrects it, rad (typical
+            MEMS calibration/alignment error plus residual linear acceleration). Default 0.6°.
+        heading_sigma_rad: reported heading standard deviation while the magnetometer corrects it, rad (residual
+            hard/soft-iron and local-field errors). Default 2°.
+        gyro_arw_rad_sqrt_s: gyro angle random walk (noise density), rad/√s; grows the reported variance while a
+            correction is missing. Default 3e-4 (0.017 °/s/√Hz, a typical MEMS gyro).
+        bias_sigma_init_rad_s: bias uncertainty before anything is learnt, rad/s. The NCF integral gain is scaled
+            by the bias variance relative to this (a Kalman-like schedule): fast learning while the bias is unknown,
+            slow refinement once it is. Default 0.5°/s.
+        bias_sigma_rest_rad_s: bias uncertainty after a rest, rad/s. Default 0.03°/s.
+        bias_walk_rad_s_sqrt_s: random walk of the bias, (rad/s)/√s: how fast knowledge of the bias ages, which keeps
+            the NCF learning while moving for ever. Default 0.01 (°/s)/√s (0.1°/s after 100 s).
     """
 
-    tau_acc_s: float = 3.0
+    tau_acc_s: float = 2.5
     tau_mag_s: float = 9.0
-    tau_bias_s: float = 60.0
+    tau_acc_lp_s: float = 2.5
+    tau_ncf_s: float = 3.0
+    tau_bias_s: float = 30.0
+    motion_bias: bool = True
     rest_bias: bool = True
     rest_gyro_rad_s: float = 2.0 * _DEG
     rest_acc_m_s2: float = 0.5
@@ -67,29 +114,27 @@ class CcfParams(CommonParams):
     bias_max_rad_s: float = 2.0 * _DEG
     mag_norm_tol: float = 0.05
     mag_dip_tol_rad: float = 5.0 * _DEG
-    gyro_noise_rad_s: float = 0.005
     mag_reaccept_s: float = 60.0
+    incl_sigma_rad: float = 0.6 * _DEG
+    heading_sigma_rad: float = 2.0 * _DEG
+    gyro_arw_rad_sqrt_s: float = 3e-4
+    bias_sigma_init_rad_s: float = 0.5 * _DEG
+    bias_sigma_rest_rad_s: float = 0.03 * _DEG
+    bias_walk_rad_s_sqrt_s: float = 0.01 * _DEG
 
     def __post_init__(self) -> None:
         super().__post_init__()
         for name in (
-            'tau_acc_s',
-            'tau_mag_s',
-            'tau_bias_s',
-            'rest_gyro_rad_s',
-            'rest_acc_m_s2',
-            'rest_min_s',
-            'rest_tau_s',
-            'bias_max_rad_s',
-            'mag_norm_tol',
-            'mag_dip_tol_rad',
-            'gyro_noise_rad_s',
-            'mag_reaccept_s',
+            'tau_acc_s', 'tau_mag_s', 'tau_acc_lp_s', 'tau_ncf_s', 'tau_bias_s', 'rest_gyro_rad_s', 'rest_acc_m_s2',
+            'rest_min_s', 'rest_tau_s', 'bias_max_rad_s', 'mag_norm_tol', 'mag_dip_tol_rad', 'mag_reaccept_s',
+            'incl_sigma_rad', 'heading_sigma_rad', 'gyro_arw_rad_sqrt_s', 'bias_sigma_init_rad_s', 'bias_sigma_rest_rad_s',
+            'bias_walk_rad_s_sqrt_s',
         ):
             check_positive(name, getattr(self, name))
         check_range('mag_dip_tol_rad', self.mag_dip_tol_rad, 0.0, math.pi)
-        if not isinstance(self.rest_bias, bool):
-            raise ValueError(f'rest_bias must be a bool, got {self.rest_bias!r}')
+        for name in ('motion_bias', 'rest_bias'):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f'{name} must be a bool, got {getattr(self, name)!r}')
 
 
 @dataclass(frozen=True, slots=True)
@@ -101,18 +146,23 @@ class _Coefficients:
     dt_hi: float
     k_acc: float
     k_mag: float
-    k_bias: float
+    k_lp: float
+    k_ncf: float
+    k_int: float
     k_rest: float
-    var_gyro: float
     rest_gyro2: float
     rest_acc2: float
+    bias_max: float
     bias_max2: float
     rest_min_s: float
     rest_bias: bool
-    keep_acc2: float
-    var_acc: float
-    keep_mag2: float
-    var_mag: float
+    keep_incl: float
+    keep_head: float
+    keep_bias_rest: float
+    u_rest: float
+    u_walk: float
+    sigma_init: float
+    var_arw: float
 
     @classmethod
     def of(cls, p: CcfParams, dt: float) -> _Coefficients:
@@ -127,34 +177,57 @@ class _Coefficients:
             dt_hi=dt * (1.0 + 1e-3),
             k_acc=-math.expm1(-dt / p.tau_acc_s),
             k_mag=-math.expm1(-dt / p.tau_mag_s),
-            k_bias=dt / (p.tau_bias_s * p.tau_bias_s),
+            k_lp=-math.expm1(-dt / p.tau_acc_lp_s),
+            k_ncf=-math.expm1(-dt / p.tau_ncf_s),
+            k_int=dt / (p.tau_ncf_s * p.tau_bias_s) if p.motion_bias else 0.0,
             k_rest=k_rest,
-            var_gyro=(p.gyro_noise_rad_s * dt) ** 2 + (p.bias_max_rad_s * dt) ** 2 * 0.01,
             rest_gyro2=p.rest_gyro_rad_s**2 / keep2,
-            rest_acc2=p.rest_acc_m_s2**2 / keep2,
+            rest_acc2=p.rest_acc_m_s2**2,
+            bias_max=p.bias_max_rad_s,
             bias_max2=p.bias_max_rad_s**2,
             rest_min_s=p.rest_min_s,
             rest_bias=p.rest_bias,
-            # Variance after a blend with gain k: (1 - k)² · prior + k² · measurement variance (0.05 rad accelerometer
-            # inclination noise, 0.1 rad magnetometer heading noise).
-            keep_acc2=math.exp(-2.0 * dt / p.tau_acc_s),
-            var_acc=math.expm1(-dt / p.tau_acc_s) ** 2 * 0.0025,
-            keep_mag2=math.exp(-2.0 * dt / p.tau_mag_s),
-            var_mag=math.expm1(-dt / p.tau_mag_s) ** 2 * 0.01,
+            # Drift variances decay with the blends' (combined) time constants once corrected again.
+            keep_incl=math.exp(-2.0 * dt / (p.tau_acc_s + p.tau_acc_lp_s)),
+            keep_head=math.exp(-2.0 * dt / p.tau_mag_s),
+            keep_bias_rest=math.exp(-dt / p.rest_tau_s),
+            u_rest=(p.bias_sigma_rest_rad_s / p.bias_sigma_init_rad_s) ** 2,
+            u_walk=(p.bias_walk_rad_s_sqrt_s / p.bias_sigma_init_rad_s) ** 2 * dt,
+            sigma_init=p.bias_sigma_init_rad_s,
+            var_arw=p.gyro_arw_rad_sqrt_s**2 * dt,
         )
 
 
-class QuaternionCcf(OrientationFilter):
-    """Cascaded complementary filter on unit quaternions; see the module docstring.
+def _drift(var: float, bias_step: float, var_arw: float) -> float:
+    """Drift variance (rad²) after one uncorrected step: the bias error adds linearly to the error's standard
+    deviation (``bias_step`` = bias uncertainty x dt, rad), the gyro noise adds ``var_arw`` (rad²)."""
+    return var + var_arw + bias_step * (bias_step + 2.0 * sqrt(var))
 
-    State (all reset by :meth:`reset`): orientation, gyro bias (rad/s, body), rest-detector low-pass values,
-    magnetometer reference (norm, dip), error variances (rad²).
+
+def tilt_transfer(p: CcfParams, f_hz: complex | float) -> tuple[complex, complex]:
+    """Small-angle transfer functions of one tilt axis at ``f_hz``: ``(H_a, H_w)`` from the accelerometer angle
+    (rad/rad) and from the measured rate (rad per rad/s) to the output; see the module docstring."""
+    s = 2j * cmath.pi * f_hz
+    kf, kn, ka = 1.0 / p.tau_acc_lp_s, 1.0 / p.tau_ncf_s, 1.0 / p.tau_acc_s
+    ki = 1.0 / (p.tau_ncf_s * p.tau_bias_s) if p.motion_bias else 0.0
+    pp = (s + kf) * (s + kn)
+    qq = s * pp + ki * kf
+    den = (s + kf) * (s + ka) * qq
+    return (ka * kf * qq + ki * kf * s * (s + kf + ka)) / den, s * (s + kf + ka) * pp / den
+
+
+class QuaternionCcf(OrientationFilter):
+    """NCF -> LCF cascade on unit quaternions; see the module docstring.
+
+    State (all reset by :meth:`reset`): LCF orientation ``q``, gyro bias (rad/s, body), filtered gravity ``g_lp``
+    (m/s², body), NCF attitude offset ``dn`` (rad, horizontal world frame), rest-detector low-pass and timer, magnetometer reference,
+    drift variances (rad²) and bias uncertainty (rad/s).
     """
 
     name = 'ccf'
     __slots__ = (
-        '_alp', '_b', '_c', '_glp', '_inv_g', '_mag_bounds', '_mag_candidate', '_mag_disturbed_s', '_mag_have_ref',
-        '_rest_s', '_var_head', '_var_incl', 'at_rest', 'mag_disturbed', '_mag_ref',
+        '_b', '_c', '_dn', '_g_lp', '_gyro_lp', '_heading_known', '_mag_bounds', '_mag_candidate', '_mag_disturbed_s',
+        '_mag_have_ref', '_mag_ref', '_rest_s', '_u_bias', '_var_head', '_var_incl',
     )
     params: CcfParams
 
@@ -164,19 +237,26 @@ class QuaternionCcf(OrientationFilter):
     def _reset_state(self) -> None:
         self._b = (0.0, 0.0, 0.0)
         self._c = _Coefficients.of(self.params, 0.0)
-        self._glp = (0.0, 0.0, 0.0)
-        self._alp = (0.0, 0.0, 0.0)
+        self._g_lp = (0.0, 0.0, GRAVITY_M_S2)
+        self._dn = (0.0, 0.0, 0.0)
+        self._gyro_lp = (0.0, 0.0, 0.0)
         self._rest_s = 0.0
-        self.at_rest = False
-        #: True while the magnetometer disagrees with its reference (heading then runs on the gyro).
-        self.mag_disturbed = False
-        self._mag_bounds = (0.0, math.inf, -2.0, 2.0)
-        self._mag_have_ref = False
-        self._mag_disturbed_s = 0.0
+        self._forget_mag_reference()
         self._var_incl = 0.0
         self._var_head = 0.0
+        self._heading_known = False
+        # Bias variance relative to bias_sigma_init_rad_s²: 1 = nothing learnt yet.
+        self._u_bias = 1.0
+
+    def _forget_mag_reference(self) -> None:
+        """No reference field: the next usable magnetometer sample becomes it (see :meth:`_mag_rejected`)."""
+        self._mag_ref = (0.0, 0.0)
+        # Bounds that accept nothing, so that the first sample goes through _mag_rejected and sets the reference.
+        self._mag_bounds = (math.inf, -math.inf, 2.0, -2.0)
         self._mag_candidate = self._mag_bounds
-        self._inv_g = 1.0 / 9.80665
+        self._mag_have_ref = False
+        self._mag_disturbed_s = 0.0
+        self.mag_disturbed = False
 
     def _bounds(self, norm: float, sin_dip: float) -> tuple[float, float, float, float]:
         """Acceptance bounds (squared norm, sin(dip)) around a field of ``norm`` and dip ``asin(sin_dip)``.
@@ -201,6 +281,7 @@ class QuaternionCcf(OrientationFilter):
         self._mag_candidate = self._mag_bounds
         self._mag_have_ref = True
         self._mag_disturbed_s = 0.0
+        self.mag_disturbed = False
 
     def _params_changed(self) -> None:
         self._c = _Coefficients.of(self.params, 0.0)
@@ -209,18 +290,33 @@ class QuaternionCcf(OrientationFilter):
             self._mag_candidate = self._mag_bounds
 
     def _init(self, ax: float, ay: float, az: float, mx: float, my: float, mz: float, mag_ok: bool) -> None:
-        q = quat_from_acc_mag((ax, ay, az), (mx, my, mz) if mag_ok else None)
-        self._q = (float(q[0]), float(q[1]), float(q[2]), float(q[3]))
-        self._glp = self._b
-        self._alp = (ax, ay, az)
-        self._rest_s = 0.0
-        an = math.sqrt(ax * ax + ay * ay + az * az)
-        self._inv_g = 1.0 / an
-        self._var_incl = (2.0 * _DEG) ** 2
-        self._var_head = (5.0 * _DEG) ** 2 if mag_ok else (math.pi / 2) ** 2
-        if mag_ok and not self._mag_have_ref:
-            n = math.sqrt(mx * mx + my * my + mz * mz)
+        q: Quat | None = quat_from_acc_mag_scalar(ax, ay, az, mx, my, mz, mag_ok)
+        p = self.params
+        if q is not None:
+            # The field at (re)initialisation is the reference of the disturbance gate.
+            an = sqrt(ax * ax + ay * ay + az * az)
+            n = sqrt(mx * mx + my * my + mz * mz)
             self._set_mag_reference(n, (mx * ax + my * ay + mz * az) / (n * an))
+            self._var_head = 0.0
+            self._heading_known = True
+        else:
+            # No heading from this sample: a re-initialisation keeps the heading it had (6-D: relative heading goes
+            # on), a first initialisation starts at heading zero. The reference field is learnt from the next
+            # usable magnetometer sample.
+            q = relevel(self._q, ax, ay, az) if self.initialized else level_quat(ax, ay, az)
+            self._forget_mag_reference()
+            if not self.initialized:
+                self._var_head = 0.0 if not p.use_mag else (math.pi / 2) ** 2
+                self._heading_known = False
+        self._q = q
+        self._g_lp = (ax, ay, az)
+        self._dn = (0.0, 0.0, 0.0)
+        self._gyro_lp = self._b
+        self._rest_s = 0.0
+        self._var_incl = 0.0
+
+    def _heading_absolute(self) -> bool:
+        return self._heading_known
 
     def _step(
         self,
@@ -242,81 +338,101 @@ class QuaternionCcf(OrientationFilter):
             c = self._c = _Coefficients.of(self.params, dt)
         qw, qx, qy, qz = self._q
         bx, by, bz = self._b
-        # World up expressed in the body frame (third row of the body->world rotation matrix).
-        vx = 2.0 * (qx * qz - qw * qy)
-        vy = 2.0 * (qy * qz + qw * qx)
-        vz = qw * qw - qx * qx - qy * qy + qz * qz
-        # ex, ey, ez: attitude error (rad, body frame) driving the bias integrator; cx, cy, cz: LCF correction.
-        var_incl = self._var_incl + c.var_gyro
-        if acc_n2:
-            # a x v / g: rotation taking the measured up direction onto the estimated one. Dividing by the gravity
-            # reference rather than |a| keeps the correction linear in the specific force, so linear
-            # accelerations, whose integral is a bounded velocity change, average out over tau_acc_s.
-            inv = self._inv_g
-            ex = (ay * vz - az * vy) * inv
-            ey = (az * vx - ax * vz) * inv
-            ez = (ax * vy - ay * vx) * inv
-            k = c.k_acc
-            cx = k * ex
-            cy = k * ey
-            cz = k * ez
-            var_incl = c.keep_acc2 * var_incl + c.var_acc
-        else:
-            ex = ey = ez = cx = cy = cz = 0.0
-        self._var_incl = var_incl
+        fx, fy, fz = self._g_lp
+        dnx, dny, dnz = self._dn
+        # Rows of the body->world rotation matrix: world east (r0), north (r1) and up (v) in body coordinates.
+        xx, yy, zz = qx * qx, qy * qy, qz * qz
+        xy, xz, yz = qx * qy, qx * qz, qy * qz
+        wx, wy, wz = qw * qx, qw * qy, qw * qz
+        r0x, r0y, r0z = 1.0 - 2.0 * (yy + zz), 2.0 * (xy - wz), 2.0 * (xz + wy)
+        r1x, r1y, r1z = 2.0 * (xy + wz), 1.0 - 2.0 * (xx + zz), 2.0 * (yz - wx)
+        vx, vy, vz = 2.0 * (xz - wy), 2.0 * (yz + wx), 1.0 - 2.0 * (xx + yy)
+        # LCF tilt error e: rotation (rad, body) taking the filtered gravity direction onto the estimated up;
+        # divided by standard gravity, not |g_lp|, so the correction stays linear in the specific force.
+        ig = _INV_G
+        ex = (fy * vz - fz * vy) * ig
+        ey = (fz * vx - fx * vz) * ig
+        ez = (fx * vy - fy * vx) * ig
+        k = c.k_acc
+        cx = k * ex
+        cy = k * ey
+        cz = k * ez
+        # NCF tilt error: its attitude is exp(dn) ⊗ q (dn: horizontal world-frame rotation), so its error is e minus
+        # dn seen in the body frame.
+        nx = ex - dnx * r0x - dny * r1x
+        ny = ey - dnx * r0y - dny * r1y
+        nz = ez - dnx * r0z - dny * r1z
+        hn = kd = 0.0
         if mag_n2:
             norm = sqrt(mag_n2)
             sin_dip = (vx * mx + vy * my + vz * mz) / norm
             lo2, hi2, lo_dip, hi_dip = self._mag_bounds
-            if lo2 <= mag_n2 <= hi2 and lo_dip <= sin_dip <= hi_dip:
-                self.mag_disturbed = False
-                self._mag_disturbed_s = 0.0
-                # Horizontal field in the world frame; it must point to +y (north in ENU). The correction is a
-                # rotation about world up (v in body coordinates): heading only, never tilt.
-                d = atan2(
-                    (1.0 - 2.0 * (qy * qy + qz * qz)) * mx + 2.0 * ((qx * qy - qw * qz) * my + (qx * qz + qw * qy) * mz),
-                    2.0 * ((qx * qy + qw * qz) * mx + (qy * qz - qw * qx) * mz) + (1.0 - 2.0 * (qx * qx + qz * qz)) * my,
-                )
-                ex += d * vx
-                ey += d * vy
-                ez += d * vz
-                k = c.k_mag
-                kd = k * d
+            if (lo2 <= mag_n2 <= hi2 and lo_dip <= sin_dip <= hi_dip) or self._mag_rejected(
+                dt, mag_n2, norm, sin_dip
+            ):
+                if self._mag_disturbed_s:
+                    self._mag_disturbed_s = 0.0
+                    self.mag_disturbed = False
+                # Horizontal field in the world frame must point to +y (north in ENU). The correction is a rotation
+                # about world up (v in body coordinates): heading only, never tilt.
+                d = atan2(r0x * mx + r0y * my + r0z * mz, r1x * mx + r1y * my + r1z * mz)
+                kd = c.k_mag * d
+                # NCF heading error (its heading is the LCF's turned by dnz about world up), limited: a larger one
+                # means the heading has not converged yet, which is no information about the bias.
+                hn = d - dnz
+                if hn > _HEAD_ERR_MAX:
+                    hn = _HEAD_ERR_MAX
+                elif hn < -_HEAD_ERR_MAX:
+                    hn = -_HEAD_ERR_MAX
+                nx += hn * vx
+                ny += hn * vy
+                nz += hn * vz
                 cx += kd * vx
                 cy += kd * vy
                 cz += kd * vz
-                self._var_head = c.keep_mag2 * (self._var_head + c.var_gyro) + c.var_mag
+                vh = self._var_head
+                if vh:
+                    # Exactly zero again once negligible, so the common path skips this.
+                    self._var_head = vh * c.keep_head if vh > 1e-14 else 0.0
+                    self._heading_known = True
             else:
-                self._mag_rejected(dt, mag_n2, norm, sin_dip)
-                self._var_head += c.var_gyro
+                self._var_head = _drift(self._var_head, c.sigma_init * sqrt(self._u_bias) * dt, c.var_arw)
         else:
-            self._var_head += c.var_gyro
-        # NCF: integral action on the attitude error estimates the bias (b = -Ki * integral(e)).
-        kb = c.k_bias
-        bx -= kb * ex
-        by -= kb * ey
-        bz -= kb * ez
+            self._var_head = _drift(self._var_head, c.sigma_init * sqrt(self._u_bias) * dt, c.var_arw)
+        if acc_n2:
+            vi = self._var_incl
+            if vi:
+                self._var_incl = vi * c.keep_incl if vi > 1e-14 else 0.0
+        else:
+            self._var_incl = _drift(self._var_incl, c.sigma_init * sqrt(self._u_bias) * dt, c.var_arw)
+        # NCF integral: the bias estimate (tilt and, with a usable magnetometer, heading). Its gain is scaled by the
+        # bias variance u relative to bias_sigma_init² (Kalman-like): a rest makes u small, so a precise rest estimate
+        # is refined only slowly while moving; u grows back as that knowledge ages (bias random walk).
+        u = self._u_bias
+        k = c.k_int * u
+        bx -= k * nx
+        by -= k * ny
+        bz -= k * nz
         if c.rest_bias:
             k = c.k_rest
-            glx, gly, glz = self._glp
-            alx, aly, alz = self._alp
+            glx, gly, glz = self._gyro_lp
             # d = sample - previous low-pass; the deviation from the updated low-pass is (1 - k) d, which the
-            # thresholds in c already account for.
+            # gyro threshold in c accounts for. The accelerometer is compared with the filtered gravity (checked
+            # first: it fails first while moving).
             dgx = gx - glx
             dgy = gy - gly
             dgz = gz - glz
-            dax = ax - alx
-            day = ay - aly
-            daz = az - alz
             glx += k * dgx
             gly += k * dgy
             glz += k * dgz
-            self._glp = (glx, gly, glz)
-            self._alp = (alx + k * dax, aly + k * day, alz + k * daz)
+            self._gyro_lp = (glx, gly, glz)
+            dax = ax - fx
+            day = ay - fy
+            daz = az - fz
             if (
-                acc_n2
+                dax * dax + day * day + daz * daz < c.rest_acc2
+                and acc_n2
                 and dgx * dgx + dgy * dgy + dgz * dgz < c.rest_gyro2
-                and dax * dax + day * day + daz * daz < c.rest_acc2
                 and glx * glx + gly * gly + glz * glz < c.bias_max2
             ):
                 self._rest_s += dt
@@ -326,14 +442,35 @@ class QuaternionCcf(OrientationFilter):
                     bx += k * (glx - bx)
                     by += k * (gly - by)
                     bz += k * (glz - bz)
-            else:
+                    self._u_bias = u = c.u_rest + (u - c.u_rest) * c.keep_bias_rest
+            elif self._rest_s:
                 self._rest_s = 0.0
                 self.at_rest = False
+        if u < 1.0 and not self.at_rest:
+            u += c.u_walk
+            self._u_bias = u if u < 1.0 else 1.0
+        # Anti-windup: the estimate never leaves ±bias_max per axis.
+        m = c.bias_max
+        if bx > m:
+            bx = m
+        elif bx < -m:
+            bx = -m
+        if by > m:
+            by = m
+        elif by < -m:
+            by = -m
+        if bz > m:
+            bz = m
+        elif bz < -m:
+            bz = -m
         self._b = (bx, by, bz)
-        # LCF: integrate the bias-corrected rate plus the blend towards the accelerometer/magnetometer attitude.
-        hx = 0.5 * ((gx - bx) * dt + cx)
-        hy = 0.5 * ((gy - by) * dt + cy)
-        hz = 0.5 * ((gz - bz) * dt + cz)
+        # LCF: integrate the bias-corrected rate plus the blend correction: q <- q ⊗ exp(h).
+        rx = (gx - bx) * dt
+        ry = (gy - by) * dt
+        rz = (gz - bz) * dt
+        hx = 0.5 * (rx + cx)
+        hy = 0.5 * (ry + cy)
+        hz = 0.5 * (rz + cz)
         n2 = hx * hx + hy * hy + hz * hz
         if n2 < 1e-4:
             # Taylor series of cos(x) and sin(x)/x; the first omitted terms are below 2e-15 for |x| < 0.01.
@@ -352,12 +489,45 @@ class QuaternionCcf(OrientationFilter):
         z = qw * hz + qx * hy - qy * hx + qz * cw
         inv = 1.0 / sqrt(w * w + x * x + y * y + z * z)
         self._q = (w * inv, x * inv, y * inv, z * inv)
+        # g_lp into the new body frame, v' = R(h)^T v = v - 2 cw (h x v) + 2 h x (h x v), then the LCF correction's
+        # share of the step undone (first order; c is ~1e-5 rad): g_lp follows the gyro only.
+        tx = 2.0 * (fy * hz - fz * hy)
+        ty = 2.0 * (fz * hx - fx * hz)
+        tz = 2.0 * (fx * hy - fy * hx)
+        gx2 = fx + cw * tx + (ty * hz - tz * hy)
+        gy2 = fy + cw * ty + (tz * hx - tx * hz)
+        gz2 = fz + cw * tz + (tx * hy - ty * hx)
+        fx = gx2 + (cy * gz2 - cz * gy2)
+        fy = gy2 + (cz * gx2 - cx * gz2)
+        fz = gz2 + (cx * gy2 - cy * gx2)
+        if acc_n2:
+            # The sample is taken at the step's end, the rectangle rule's frame half a step ahead: rotate it back
+            # by half the gyro step, then blend.
+            k = c.k_lp
+            fx += k * (ax - 0.5 * (ry * az - rz * ay) - fx)
+            fy += k * (ay - 0.5 * (rz * ax - rx * az) - fy)
+            fz += k * (az - 0.5 * (rx * ay - ry * ax) - fz)
+        self._g_lp = (fx, fy, fz)
+        # NCF offset (world frame, unchanged by the common gyro step): dn += R (c_ncf - c_lcf), horizontal part.
+        k = c.k_ncf
+        ux = k * nx - cx
+        uy = k * ny - cy
+        uz = k * nz - cz
+        self._dn = (
+            dnx + r0x * ux + r0y * uy + r0z * uz,
+            dny + r1x * ux + r1y * uy + r1z * uz,
+            dnz + c.k_ncf * hn - kd,
+        )
 
-    def _mag_rejected(self, dt: float, mag_n2: float, norm: float, sin_dip: float) -> None:
-        """Book-keeping for a magnetometer sample that disagrees with the reference (rare path)."""
+    def _mag_rejected(self, dt: float, mag_n2: float, norm: float, sin_dip: float) -> bool:
+        """Book-keeping for a magnetometer sample outside the acceptance bounds (rare path).
+
+        Returns True if the sample is to be used after all: it became the reference (first usable sample after a
+        (re)initialisation, or a new field that stayed steady for ``mag_reaccept_s``).
+        """
         if not self._mag_have_ref:
             self._set_mag_reference(norm, sin_dip)
-            return
+            return True
         self.mag_disturbed = True
         lo2, hi2, lo_dip, hi_dip = self._mag_candidate
         if lo2 <= mag_n2 <= hi2 and lo_dip <= sin_dip <= hi_dip:
@@ -365,10 +535,12 @@ class QuaternionCcf(OrientationFilter):
             if self._mag_disturbed_s > self.params.mag_reaccept_s:
                 # A different field that stayed steady this long is the new normal (moved robot, new mounting).
                 self._set_mag_reference(norm, sin_dip)
+                return True
         else:
             # Not steady: start timing a new candidate field.
             self._mag_candidate = self._bounds(norm, sin_dip)
             self._mag_disturbed_s = 0.0
+        return False
 
     @property
     def gyro_bias(self) -> tuple[float, float, float]:
@@ -376,6 +548,22 @@ class QuaternionCcf(OrientationFilter):
         return self._b
 
     @property
+    def ncf_quaternion(self) -> Quat:
+        """The NCF stage's own attitude ``exp(dn) ⊗ q`` (internal ENU frame), ``(w, x, y, z)``."""
+        qw, qx, qy, qz = self._q
+        dx, dy, dz = (0.5 * v for v in self._dn)
+        # (1, dx, dy, dz) ⊗ q, normalised: first order in the small world-frame rotation dn.
+        w = qw - dx * qx - dy * qy - dz * qz
+        x = qx + dx * qw + dy * qz - dz * qy
+        y = qy - dx * qz + dy * qw + dz * qx
+        z = qz + dx * qy - dy * qx + dz * qw
+        n = 1.0 / sqrt(w * w + x * x + y * y + z * z)
+        return (w * n, x * n, y * n, z * n)
+
+    @property
     def orientation_variance(self) -> tuple[float, float, float]:
-        """Variance of roll, pitch, yaw errors, rad²."""
-        return (self._var_incl, self._var_incl, self._var_head)
+        """Variance of roll, pitch, yaw errors, rad² (yaw relative to the start without a magnetometer)."""
+        p = self.params
+        vi = p.incl_sigma_rad * p.incl_sigma_rad + self._var_incl
+        vh = self._var_head + (p.heading_sigma_rad * p.heading_sigma_rad if self._heading_known else 0.0)
+        return (vi, vi, vh)

@@ -169,8 +169,18 @@ def quat_from_acc_mag(acc: ArrayLike, mag: ArrayLike | None = None) -> FloatArra
         east_guess = np.where(np.linalg.norm(east_guess, axis=-1, keepdims=True) > 1e-6, east_guess, alt)
         east = east_guess / np.linalg.norm(east_guess, axis=-1, keepdims=True)
     else:
-        east = np.cross(np.asarray(mag, dtype=float), up)
-        east = east / np.linalg.norm(east, axis=-1, keepdims=True)
+        m = np.asarray(mag, dtype=float)
+        east = np.cross(m, up)
+        en = np.linalg.norm(east, axis=-1, keepdims=True)
+        # A field (nearly) along gravity has no horizontal part: fall back to heading zero there instead of 0/0.
+        ok = en > MAG_PARALLEL_SIN * np.linalg.norm(m, axis=-1, keepdims=True)
+        fallback = quat_from_acc_mag(acc)
+        if not np.all(ok):
+            east = np.where(ok, east / np.where(ok, en, 1.0), 0.0)
+            north = np.cross(up, east)
+            q = rotmat_to_quat(np.stack((east, north, up), axis=-2))
+            return np.where(ok, q, fallback)
+        east = east / en
     north = np.cross(up, east)
     # Rows of R (world from body) are the world axes expressed in body coordinates.
     r = np.stack((east, north, up), axis=-2)
@@ -207,3 +217,93 @@ def to_xyzw(q: tuple[float, float, float, float]) -> tuple[float, float, float, 
 def from_xyzw(x: float, y: float, z: float, w: float) -> tuple[float, float, float, float]:
     """ROS message order ``(x, y, z, w)`` -> core ``(w, x, y, z)``."""
     return (w, x, y, z)
+
+
+# --- scalar helpers for the per-sample path (plain floats: several times faster than numpy on one sample) ---------
+
+Quat = tuple[float, float, float, float]
+
+#: A magnetometer closer than this (sine of the angle) to the gravity direction gives no heading.
+MAG_PARALLEL_SIN = math.sin(math.radians(5.0))
+
+
+def quat_from_acc_mag_scalar(
+    ax: float, ay: float, az: float, mx: float, my: float, mz: float, use_mag: bool
+) -> Quat | None:
+    """Body->ENU ``(w, x, y, z)`` from a specific force (m/s², any non-zero norm) and a field (any unit).
+
+    Returns None when the magnetometer cannot give a heading (``use_mag`` false, or the field within 5° of the
+    gravity direction, where ``mag x up`` vanishes); the caller then chooses the heading.
+    """
+    if not use_mag:
+        return None
+    n = math.sqrt(ax * ax + ay * ay + az * az)
+    ux, uy, uz = ax / n, ay / n, az / n
+    # east = mag x up (body coordinates)
+    ex, ey, ez = my * uz - mz * uy, mz * ux - mx * uz, mx * uy - my * ux
+    en = math.sqrt(ex * ex + ey * ey + ez * ez)
+    mn = math.sqrt(mx * mx + my * my + mz * mz)
+    if not en > MAG_PARALLEL_SIN * mn:
+        return None
+    ex, ey, ez = ex / en, ey / en, ez / en
+    nx, ny, nz = uy * ez - uz * ey, uz * ex - ux * ez, ux * ey - uy * ex
+    return _rows_to_quat(ex, ey, ez, nx, ny, nz, ux, uy, uz)
+
+
+def _rows_to_quat(
+    m00: float, m01: float, m02: float, m10: float, m11: float, m12: float, m20: float, m21: float, m22: float
+) -> Quat:
+    """Unit quaternion (w >= 0) of the rotation matrix with these rows (world axes in body coordinates)."""
+    tr = m00 + m11 + m22
+    if tr > 0.0:
+        s = 2.0 * math.sqrt(1.0 + tr)
+        q = (0.25 * s, (m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s)
+    elif m00 > m11 and m00 > m22:
+        s = 2.0 * math.sqrt(1.0 + m00 - m11 - m22)
+        q = ((m21 - m12) / s, 0.25 * s, (m01 + m10) / s, (m02 + m20) / s)
+    elif m11 > m22:
+        s = 2.0 * math.sqrt(1.0 + m11 - m00 - m22)
+        q = ((m02 - m20) / s, (m01 + m10) / s, 0.25 * s, (m12 + m21) / s)
+    else:
+        s = 2.0 * math.sqrt(1.0 + m22 - m00 - m11)
+        q = ((m10 - m01) / s, (m02 + m20) / s, (m12 + m21) / s, 0.25 * s)
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    sign = 1.0 / n if q[0] >= 0.0 else -1.0 / n
+    return (q[0] * sign, q[1] * sign, q[2] * sign, q[3] * sign)
+
+
+def relevel(q: Quat, ax: float, ay: float, az: float) -> Quat:
+    """``q`` turned by the smallest body rotation that makes its gravity direction the measured one (``a``, any
+    norm > 0): the tilt is re-levelled, the heading kept (no rotation about world up)."""
+    qw, qx, qy, qz = q
+    # estimated up in the body frame
+    vx = 2.0 * (qx * qz - qw * qy)
+    vy = 2.0 * (qy * qz + qw * qx)
+    vz = qw * qw - qx * qx - qy * qy + qz * qz
+    n = math.sqrt(ax * ax + ay * ay + az * az)
+    ux, uy, uz = ax / n, ay / n, az / n
+    # The body rotation d with R(d) u = v: q' = q ⊗ d gives R(q')^T z = R(d)^T v = u.
+    c = ux * vx + uy * vy + uz * vz
+    wx, wy, wz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+    if c < -0.999999:
+        # Opposite directions: any axis perpendicular to u (half turn).
+        wx, wy, wz = (0.0, -uz, uy) if abs(ux) < 0.9 else (-uz, 0.0, ux)
+        wn = math.sqrt(wx * wx + wy * wy + wz * wz)
+        d = (0.0, wx / wn, wy / wn, wz / wn)
+    else:
+        # Half-angle quaternion of the shortest arc: (1 + c, u x v) normalised.
+        dn = math.sqrt(2.0 * (1.0 + c))
+        d = (0.5 * dn, wx / dn, wy / dn, wz / dn)
+    dw, dx, dy, dz = d
+    w = qw * dw - qx * dx - qy * dy - qz * dz
+    x = qw * dx + qx * dw + qy * dz - qz * dy
+    y = qw * dy - qx * dz + qy * dw + qz * dx
+    z = qw * dz + qx * dy - qy * dx + qz * dw
+    s = 1.0 / math.sqrt(w * w + x * x + y * y + z * z)
+    return (w * s, x * s, y * s, z * s)
+
+
+def level_quat(ax: float, ay: float, az: float) -> Quat:
+    """Body->ENU orientation of a specific force ``a`` (any norm > 0) with heading zero (body x towards east
+    where possible): the first-sample initialisation without a usable magnetometer."""
+    return relevel((1.0, 0.0, 0.0, 0.0), ax, ay, az)
