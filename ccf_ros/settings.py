@@ -12,6 +12,7 @@ from typing import Any
 from .core.base import OrientationFilter
 from .core.registry import all_param_names, make_filter
 from .core.registry import defaults as filter_defaults
+from .errors import ParameterError
 
 #: Settings of the adapters (node and replay), with defaults.
 ADAPTER_DEFAULTS: dict[str, Any] = {
@@ -99,7 +100,21 @@ class AdapterSettings:
 
 
 def build(settings: Mapping[str, Any], *, strict: bool = True) -> tuple[OrientationFilter, AdapterSettings]:
-    """Filter and adapter settings from a flat mapping; ValueError names any unknown or invalid setting."""
+    """Filter and adapter settings from a flat mapping.
+
+    Raises:
+        ParameterError: an unknown, inapplicable or invalid setting (its name and value in the message).
+    """
+    try:
+        return _build(settings, strict=strict)
+    except ParameterError:
+        raise
+    except ValueError as err:
+        # The core and the params dataclasses raise ValueError naming the value; users get one error type.
+        raise ParameterError(str(err)) from err
+
+
+def _build(settings: Mapping[str, Any], *, strict: bool) -> tuple[OrientationFilter, AdapterSettings]:
     filt_part: dict[str, Any] = {}
     adapter: dict[str, Any] = {}
     known = all_param_names()

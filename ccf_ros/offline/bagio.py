@@ -12,10 +12,10 @@ import numpy as np
 
 from ..core.pairing import MagPairer
 from ..core.quaternion import from_xyzw
+from ..errors import BagError
 
-
-class BagError(Exception):
-    """A bag cannot be read or written as asked; the message is meant for the user, one line."""
+__all__ = ['BagError', 'ImuArrays', 'connections_for', 'open_bag', 'read_bools', 'read_imu_arrays', 'read_orientations',
+           'stamp_s', 'typestore']
 
 
 def typestore() -> Any:
