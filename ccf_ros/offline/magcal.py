@@ -1,0 +1,420 @@
+"""``ccf calibrate-mag``: magnetometer hard-/soft-iron calibration from a bag.
+
+Model: a raw reading is ``m_raw = W m_true + b`` (tesla, as in sensor_msgs/MagneticField) with soft-iron matrix
+``W`` (3x3) and hard-iron offset ``b`` (3,). The calibration gives ``b`` and a symmetric positive-definite ``S`` with
+``m_cal = S (m_raw - b)`` on a sphere. ``S`` equals ``W^-1`` up to a rotation and a scale; of the rotations we
+take the one that makes ``S`` symmetric, and the scale is fixed by:
+
+* a given field norm ``field_norm_t``: the sphere radius is that norm (``S = W^-1`` if ``|m_true|`` is it);
+* otherwise ``det S = 1``: ``S`` preserves volume and the radius is the geometric mean of the raw ellipsoid's
+  semi-axes (``S = W^-1`` if ``det W = 1``).
+
+Fit: Li & Griffiths' (2004) ellipsoid-specific least-squares quadric fit on centred and scaled data (raw values
+are ~5e-5 T), then Levenberg-Marquardt on the geometric residual ``|S (m - b)| - r`` divided by its gradient
+norm (Sampson's distance, in raw units). Numpy only.
+
+Coverage: the calibrated directions are binned to the nearest of :data:`COVERAGE_BINS` Fibonacci-lattice
+directions (bins of ~4 pi / 100 sr, ~23 deg across); coverage is the fraction of bins with at least
+:data:`COVERAGE_MIN_PER_BIN` samples. A full calibration dance gives 0.5-0.9; a sensor turned about one axis
+0.1-0.25, and there the fit is unreliable even though its residual looks fine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from .bagio import BagError, connections_for, open_bag
+
+#: Fewest usable samples :func:`fit` accepts.
+MIN_SAMPLES = 50
+#: Coverage bins: this many Fibonacci-sphere directions; a sample falls in the bin of its nearest direction.
+COVERAGE_BINS = 100
+#: A bin counts as covered when it holds at least this many samples.
+COVERAGE_MIN_PER_BIN = 3
+#: Below this coverage the command warns.
+COVERAGE_WARN = 0.3
+#: Smallest over largest spread (principal standard deviation) of the data below which it counts as flat.
+MIN_SPREAD_RATIO = 0.05
+#: Smallest ratio of the samples' largest principal spread to their RMS radial residual (sensor turned enough).
+MIN_SPAN_SNR = 5.0
+#: Largest believable ratio of the fitted ellipsoid's longest to shortest axis.
+MAX_AXIS_RATIO = 3.0
+
+
+_HINT = 'rotate the sensor through more orientations, away from magnetic disturbances'
+
+
+class CalibrationError(ValueError):
+    """The samples cannot give a calibration; the message is meant for the user, one line."""
+
+
+@dataclass(frozen=True)
+class MagCalibration:
+    """Result of :func:`fit`: ``m_cal = S (m_raw - offset)``.
+
+    offset_t (3,) T; soft_iron (9,) ``S`` row-major, symmetric positive definite; radius_t sphere radius of
+    ``m_cal``, T; residual_rel RMS of ``(|m_cal| - radius) / radius``; coverage fraction in [0, 1] of direction
+    bins holding samples (see :func:`coverage`); n_samples samples used.
+    """
+
+    offset_t: tuple[float, ...]
+    soft_iron: tuple[float, ...]
+    radius_t: float
+    residual_rel: float
+    coverage: float
+    n_samples: int
+
+    def __post_init__(self) -> None:
+        if len(self.offset_t) != 3 or len(self.soft_iron) != 9:
+            raise ValueError(f'expected 3 offsets and 9 soft-iron entries, got {len(self.offset_t)}, '
+                             f'{len(self.soft_iron)}')
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """``S`` as a (3, 3) array."""
+        return np.array(self.soft_iron, dtype=float).reshape(3, 3)
+
+    @property
+    def offset(self) -> np.ndarray:
+        """Offset as a (3,) array, T."""
+        return np.array(self.offset_t, dtype=float)
+
+    def apply(self, m: ArrayLike) -> np.ndarray:
+        """Calibrated field ``S (m - offset)`` of raw readings ``m`` (N, 3) or (3,), T; same shape."""
+        m = np.asarray(m, dtype=float)
+        if m.shape[-1:] != (3,) or m.ndim > 2:
+            raise ValueError(f'expected (N, 3) or (3,) magnetometer readings, got shape {m.shape}')
+        return (m - self.offset) @ self.matrix.T
+
+
+def fibonacci_directions(n: int = COVERAGE_BINS) -> np.ndarray:
+    """``n`` nearly uniform unit vectors (n, 3) on the sphere (Fibonacci lattice)."""
+    i = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * i / n
+    r = np.sqrt(1.0 - z * z)
+    phi = np.pi * (3.0 - np.sqrt(5.0)) * i
+    return np.stack((r * np.cos(phi), r * np.sin(phi), z), axis=1)
+
+
+def coverage(m_cal: ArrayLike) -> float:
+    """Fraction of the :data:`COVERAGE_BINS` Fibonacci direction bins holding >= :data:`COVERAGE_MIN_PER_BIN`
+    of the directions of ``m_cal`` (N, 3); each sample falls in the bin of its nearest direction."""
+    m = np.asarray(m_cal, dtype=float).reshape(-1, 3)
+    norm = np.linalg.norm(m, axis=1)
+    m = m[norm > 0] / norm[norm > 0, None]
+    dirs = fibonacci_directions()
+    counts = np.zeros(len(dirs), dtype=int)
+    for k in range(0, len(m), 20000):  # blocks: (N, 100) dot products of a long bag are hundreds of MB
+        counts += np.bincount(np.argmax(m[k:k + 20000] @ dirs.T, axis=1), minlength=len(dirs))
+    return float(np.mean(counts >= COVERAGE_MIN_PER_BIN))
+
+
+def _li_griffiths(x: np.ndarray) -> np.ndarray:
+    """Ellipsoid ``(x - c)^T M (x - c) = 1`` through points ``x`` (N, 3) (of order 1): ``(c, M)`` packed as
+    (12,); the quadric with ``4J - I^2 > 0`` (always an ellipsoid) minimising the algebraic residual."""
+    X, Y, Z = x.T
+    D = np.stack((X * X, Y * Y, Z * Z, 2 * Y * Z, 2 * X * Z, 2 * X * Y, 2 * X, 2 * Y, 2 * Z, np.ones_like(X)), axis=1)
+    Sd = D.T @ D
+    S11, S12, S22 = Sd[:6, :6], Sd[:6, 6:], Sd[6:, 6:]
+    k = 4.0
+    C1 = np.zeros((6, 6))
+    C1[:3, :3] = k / 2 - 1
+    np.fill_diagonal(C1[:3, :3], -1.0)
+    C1[3:, 3:] = -k / 4 * np.eye(3)
+    try:
+        S22_inv_S21 = np.linalg.solve(S22, S12.T)
+        w, V = np.linalg.eig(np.linalg.solve(C1, S11 - S12 @ S22_inv_S21))
+    except np.linalg.LinAlgError:
+        raise CalibrationError(f'magnetometer samples are degenerate (no ellipsoid through them): {_HINT}') from None
+    # The constrained minimum is the eigenvector of the one positive eigenvalue.
+    real = np.abs(w.imag) < 1e-9 * max(1.0, float(np.max(np.abs(w))))
+    pos = np.flatnonzero(real & (w.real > 0))
+    if len(pos) == 0:
+        raise CalibrationError(f'magnetometer samples do not lie on an ellipsoid: {_HINT}')
+    v1 = V[:, pos[np.argmax(w.real[pos])]].real
+    v2 = -S22_inv_S21 @ v1
+    a, b, c, f, g, h = v1
+    A = np.array([[a, h, g], [h, b, f], [g, f, c]])
+    try:
+        centre = -np.linalg.solve(A, v2[:3])
+    except np.linalg.LinAlgError:
+        raise CalibrationError(f'magnetometer samples do not lie on an ellipsoid: {_HINT}') from None
+    scale = centre @ A @ centre - v2[3]
+    M = A / scale
+    if not np.all(np.isfinite(M)) or np.min(np.linalg.eigvalsh(M)) <= 0:
+        raise CalibrationError(f'magnetometer samples do not lie on an ellipsoid: {_HINT}')
+    return np.concatenate((centre, M.ravel()))
+
+
+def _sym_sqrt(M: np.ndarray) -> np.ndarray:
+    """Symmetric square root (3, 3) of a symmetric positive-definite ``M``."""
+    w, V = np.linalg.eigh(M)
+    return (V * np.sqrt(w)) @ V.T
+
+
+_SYM = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
+
+
+def _unpack(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    S = np.empty((3, 3))
+    for k, (i, j) in enumerate(_SYM):
+        S[i, j] = S[j, i] = p[3 + k]
+    return p[:3], S
+
+
+def _refine(x: np.ndarray, c0: np.ndarray, S0: np.ndarray, iterations: int = 30) -> tuple[np.ndarray, np.ndarray]:
+    """Levenberg-Marquardt over centre ``c`` (3,) and symmetric ``S`` (3, 3) (6 unknowns) of ``|S (x - c)| = 1``.
+
+    The residual is ``(|S u| - 1) / |grad|`` with ``u = x - c``: the geometric residual divided by its gradient
+    norm in ``x``, i.e. Sampson's first-order distance in raw units. Isotropic raw noise becomes anisotropic
+    through ``S``; unweighted, the fit leans on the directions where it is stretched (offset errors 2-5x larger
+    with half the sphere covered).
+    """
+    p = np.concatenate((c0, [S0[i, j] for i, j in _SYM]))
+
+    def residual(p: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        S = _unpack(p)[1]
+        u = x - p[:3]
+        y = u @ S  # S symmetric: rows are (S u_i)^T
+        n = np.linalg.norm(y, axis=1)
+        yh = y / n[:, None]
+        z = yh @ S  # gradient of |S u| in x
+        g = np.linalg.norm(z, axis=1)
+        return (n - 1.0) / g, {'S': S, 'u': u, 'n': n, 'yh': yh, 'z': z, 'g': g}
+
+    def jacobian(w: dict[str, np.ndarray]) -> np.ndarray:
+        S, u, n, yh, g = w['S'], w['u'], w['n'], w['yh'], w['g']
+        zh = w['z'] / g[:, None]
+        q = zh @ S
+        v = (q - np.sum(q * yh, axis=1)[:, None] * yh) / n[:, None]  # d|S yh| / dy
+        beta = (n - 1.0) / (g * g)
+        a = yh / g[:, None] - beta[:, None] * v  # de / dy
+        J = np.empty((len(u), 9))
+        J[:, :3] = -a @ S  # dy / dc = -S
+        for k, (i, j) in enumerate(_SYM):
+            if i == j:
+                J[:, 3 + k] = a[:, i] * u[:, i] - beta * zh[:, i] * yh[:, i]
+            else:
+                J[:, 3 + k] = (a[:, i] * u[:, j] + a[:, j] * u[:, i]
+                               - beta * (zh[:, i] * yh[:, j] + zh[:, j] * yh[:, i]))
+        return J
+
+    e, work = residual(p)
+    cost = float(e @ e)
+    lam = 1e-3
+    for _ in range(iterations):
+        J = jacobian(work)
+        JtJ, Jte = J.T @ J, J.T @ e
+        improved = done = False
+        while lam < 1e8:
+            step = np.linalg.solve(JtJ + lam * np.diag(np.diag(JtJ)), -Jte)
+            e2, work2 = residual(p + step)
+            cost2 = float(e2 @ e2)
+            if cost2 < cost:  # NaN (a step through a degenerate S) compares False: rejected
+                done = cost - cost2 < 1e-12 * cost or float(np.max(np.abs(step))) < 1e-12
+                p, e, work, cost, lam, improved = p + step, e2, work2, cost2, max(lam / 10, 1e-12), True
+                break
+            lam *= 10
+        if not improved or done:
+            break
+    return _unpack(p)
+
+
+def fit(mag: ArrayLike, *, field_norm_t: float | None = None) -> MagCalibration:
+    """Hard- and soft-iron calibration from raw magnetometer samples ``mag`` (N, 3), T.
+
+    ``field_norm_t`` (T): the local field norm, which becomes the radius of the calibrated sphere; if None,
+    ``det S = 1`` instead. Non-finite and all-zero samples are dropped. Raises :class:`CalibrationError` on fewer
+    than :data:`MIN_SAMPLES` samples, flat or degenerate data, or a fit that is no believable ellipsoid.
+    """
+    m = np.asarray(mag, dtype=float)
+    if m.ndim != 2 or m.shape[1] != 3:
+        raise ValueError(f'expected (N, 3) magnetometer samples, got shape {m.shape}')
+    if field_norm_t is not None and not (math.isfinite(field_norm_t) and field_norm_t > 0):
+        raise ValueError(f'field norm must be a positive number, got {field_norm_t!r}')
+    m = m[np.all(np.isfinite(m), axis=1) & np.any(m != 0, axis=1)]
+    if len(m) < MIN_SAMPLES:
+        raise CalibrationError(f'{len(m)} usable magnetometer samples; need at least {MIN_SAMPLES}')
+    # Centre and scale to order 1: the quadric's design matrix holds squares of ~5e-5 T values otherwise.
+    mean = m.mean(axis=0)
+    spread = np.linalg.svd(m - mean, compute_uv=False) / math.sqrt(len(m))
+    if spread[0] <= 0 or spread[2] < MIN_SPREAD_RATIO * spread[0]:
+        raise CalibrationError(f'magnetometer samples lie in a plane or on a line: {_HINT}')
+    scale = float(np.sqrt(np.sum(spread**2)))
+    x = (m - mean) / scale
+    packed = _li_griffiths(x)
+    c, S = _refine(x, packed[:3], _sym_sqrt(packed[3:].reshape(3, 3)))
+    w = np.linalg.eigvalsh(S)
+    if not np.all(np.isfinite(S)) or w[0] <= 0:
+        raise CalibrationError(f'magnetometer samples do not lie on an ellipsoid: {_HINT}')
+    # Normalised units: the fitted ellipsoid's geometric-mean radius is det(S)^(-1/3).
+    r_fit = float(np.prod(w)) ** (-1.0 / 3.0)
+    rel = np.linalg.norm((x - c) @ S, axis=1) - 1.0
+    res = float(np.sqrt(np.mean(rel * rel)))
+    if spread[0] / scale < MIN_SPAN_SNR * res * r_fit:
+        # Some ellipsoid fits any cloud (at rest: the noise; disturbed: a mix of fields). It means something only
+        # if the samples vary well beyond their scatter about it.
+        raise CalibrationError(
+            'magnetometer samples scatter about the fit nearly as much as they vary (sensor hardly turned, or field '
+            'disturbed): ' + _HINT
+        )
+    if w[-1] / w[0] > MAX_AXIS_RATIO:
+        raise CalibrationError(f'fitted ellipsoid is implausibly elongated (axis ratio {w[-1] / w[0]:.1f}): {_HINT}')
+    # Back to tesla: |S_unit (m - offset)| = 1 on the fitted ellipsoid.
+    offset = mean + scale * c
+    S_unit = S / scale
+    radius = float(field_norm_t) if field_norm_t is not None else float(np.linalg.det(S_unit)) ** (-1.0 / 3.0)
+    S_t = radius * S_unit
+    m_cal = (m - offset) @ S_t.T
+    rel = np.linalg.norm(m_cal, axis=1) / radius - 1.0
+    return MagCalibration(
+        offset_t=tuple(float(v) for v in offset),
+        soft_iron=tuple(float(v) for v in S_t.ravel()),
+        radius_t=radius,
+        residual_rel=float(np.sqrt(np.mean(rel * rel))),
+        coverage=coverage(m_cal),
+        n_samples=len(m),
+    )
+
+
+def read_mag(bag: str | Path, topic: str = '/imu/mag') -> np.ndarray:
+    """All magnetic_field vectors (N, 3), T, of a sensor_msgs/MagneticField topic; :class:`BagError` if absent."""
+    out: list[tuple[float, float, float]] = []
+    with open_bag(bag) as reader:
+        conns = connections_for(reader, topic)
+        for c in conns:
+            if not c.msgtype.endswith('/MagneticField'):
+                raise BagError(f'topic {topic} is {c.msgtype}, expected sensor_msgs/msg/MagneticField')
+        try:
+            for conn, _, raw in reader.messages(connections=conns):
+                f = reader.deserialize(raw, conn.msgtype).magnetic_field
+                out.append((f.x, f.y, f.z))
+        except Exception as err:  # rosbags raises several types; the user needs one line
+            raise BagError(f'{bag}: bag is unreadable or truncated: {err}') from None
+    return np.array(out, dtype=float).reshape(-1, 3)
+
+
+def _num(v: float) -> str:
+    # Always a mantissa dot and a signed exponent: YAML 1.1 (PyYAML) reads '5e-05' as a string.
+    return f'{v:.10e}'
+
+
+def params_yaml(cal: MagCalibration) -> str:
+    """A ROS 2 parameters file (``/**: ros__parameters:``) with mag_bias_x/y/z (T) and mag_soft_iron (9, row-major)."""
+    b = cal.offset_t
+    lines = [
+        '# Magnetometer calibration by ccf calibrate-mag: m_cal = S (m_raw - b), b = mag_bias_* (T),',
+        '# S = mag_soft_iron (row-major).',
+        f'# residual {cal.residual_rel:.3%} RMS of |m_cal|, coverage {cal.coverage:.0%} of directions, '
+        f'radius {cal.radius_t * 1e6:.3f} uT, n_samples {cal.n_samples}',
+        '/**:',
+        '  ros__parameters:',
+        f'    mag_bias_x: {_num(b[0])}',
+        f'    mag_bias_y: {_num(b[1])}',
+        f'    mag_bias_z: {_num(b[2])}',
+        f'    mag_soft_iron: [{", ".join(_num(v) for v in cal.soft_iron)}]',
+    ]
+    return '\n'.join(lines) + '\n'
+
+
+def plot(path: str | Path, raw: ArrayLike, cal: MagCalibration) -> None:
+    """PNG of the xy, yz and zx projections of raw and calibrated samples (µT) with the fitted radius circle."""
+    import matplotlib
+
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    m = np.asarray(raw, dtype=float).reshape(-1, 3)
+    m = m[np.all(np.isfinite(m), axis=1) & np.any(m != 0, axis=1)]
+    if len(m) > 5000:  # a scatter of every sample of a long bag is slow and no clearer
+        m = m[np.linspace(0, len(m) - 1, 5000).astype(int)]
+    raw_ut, cal_ut = m * 1e6, cal.apply(m) * 1e6
+    r = cal.radius_t * 1e6
+    t = np.linspace(0, 2 * np.pi, 361)
+    fig, axes = plt.subplots(1, 3, figsize=(15, 5.4))
+    for ax, (i, j), name in zip(axes, ((0, 1), (1, 2), (2, 0)), ('xy', 'yz', 'zx'), strict=True):
+        ax.plot(raw_ut[:, i], raw_ut[:, j], '.', ms=1.5, alpha=0.4, color='tab:red', label='raw')
+        ax.plot(cal_ut[:, i], cal_ut[:, j], '.', ms=1.5, alpha=0.4, color='tab:blue', label='calibrated')
+        ax.plot(r * np.cos(t), r * np.sin(t), 'k-', lw=1.0, label=f'radius {r:.1f} µT')
+        ax.set_xlabel(f'{name[0]} [µT]')
+        ax.set_ylabel(f'{name[1]} [µT]')
+        ax.set_title(f'{name} plane')
+        ax.set_aspect('equal', adjustable='datalim')
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc='upper right', fontsize=8, markerscale=6)
+    fig.suptitle(f'magnetometer calibration: residual {cal.residual_rel:.2%} RMS, coverage {cal.coverage:.0%}, '
+                 f'{cal.n_samples} samples')
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def cmd_calibrate_mag(args: argparse.Namespace) -> int:
+    """Read, fit, report, write the parameters YAML (atomically) and optionally the plot."""
+    out = Path(args.output)
+    # Refuse before the slow part, not after.
+    if out.exists() and not args.overwrite:
+        raise CalibrationError(f'{out} exists; pass --overwrite to replace it')
+    if args.field_norm_ut is not None and not (math.isfinite(args.field_norm_ut) and args.field_norm_ut > 0):
+        raise CalibrationError(f'--field-norm-ut must be a positive number of uT, got {args.field_norm_ut!r}')
+    raw = read_mag(args.bag, args.mag_topic)
+    field_norm_t = None if args.field_norm_ut is None else args.field_norm_ut * 1e-6
+    cal = fit(raw, field_norm_t=field_norm_t)
+    b = cal.offset * 1e6
+    dropped = len(raw) - cal.n_samples
+    note = f' ({dropped} non-finite or zero dropped)' if dropped else ''
+    print(f'{cal.n_samples} samples from {args.mag_topic}{note}')
+    print(f'offset b [uT]: {b[0]:.3f} {b[1]:.3f} {b[2]:.3f}')
+    print('soft iron S (m_cal = S (m_raw - b)):')
+    for row in cal.matrix:
+        print('  ' + ' '.join(f'{v:9.5f}' for v in row))
+    scale = 'given field norm' if field_norm_t is not None else 'det S = 1'
+    print(f'radius {cal.radius_t * 1e6:.3f} uT ({scale}), residual {cal.residual_rel:.2%} RMS, '
+          f'coverage {cal.coverage:.0%} of directions')
+    if cal.coverage < COVERAGE_WARN:
+        print(f'warning: coverage {cal.coverage:.0%} is low: rotate the sensor through more orientations '
+              '(all sides up, full turns) and record again')
+    # Temp sibling + rename: a reader (or a crash) never sees half a file.
+    tmp = out.with_name(f'.{out.name}.partial')
+    try:
+        tmp.write_text(params_yaml(cal))
+        os.replace(tmp, out)
+    except OSError as err:
+        tmp.unlink(missing_ok=True)
+        raise CalibrationError(f'cannot write {out}: {err.strerror}') from None
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    print(f'wrote {out}')
+    if args.plot:
+        plot(args.plot, raw, cal)
+        print(f'plot: {args.plot}')
+    return 0
+
+
+def add_parser(subparsers: Any) -> argparse.ArgumentParser:
+    """Register ``calibrate-mag`` on an ``add_subparsers()`` object; returns the new parser."""
+    p: argparse.ArgumentParser = subparsers.add_parser(
+        'calibrate-mag',
+        help='fit magnetometer hard-/soft-iron calibration from a bag, write a parameters YAML',
+        description='Fit m_cal = S (m_raw - b) to the magnetometer samples of a bag: b hard-iron offset, '
+        'S symmetric soft-iron matrix; radius = --field-norm-ut if given, else det S = 1.',
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    p.add_argument('bag', help='input: rosbag2 directory (mcap or sqlite3) or ROS 1 .bag')
+    p.add_argument('--mag-topic', default='/imu/mag', help='sensor_msgs/MagneticField topic')
+    p.add_argument('-o', '--output', default='mag_calibration.yaml', help='output ROS 2 parameters YAML')
+    p.add_argument('--plot', metavar='FILE.png', help='also plot raw and calibrated samples')
+    p.add_argument('--field-norm-ut', type=float, metavar='UT',
+                   help='local field norm, uT: the radius of the calibrated sphere; None: scale to det S = 1')
+    p.add_argument('--overwrite', action='store_true', help='replace an existing output file')
+    p.set_defaults(func=cmd_calibrate_mag)
+    return p
