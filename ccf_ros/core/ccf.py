@@ -147,6 +147,7 @@ class _Coefficients:
     k_acc: float
     k_mag: float
     k_lp: float
+    k_min: float
     k_ncf: float
     k_int: float
     k_rest: float
@@ -178,6 +179,7 @@ class _Coefficients:
             k_acc=-math.expm1(-dt / p.tau_acc_s),
             k_mag=-math.expm1(-dt / p.tau_mag_s),
             k_lp=-math.expm1(-dt / p.tau_acc_lp_s),
+            k_min=-math.expm1(-dt / max(p.tau_acc_s, p.tau_mag_s, p.tau_acc_lp_s)),
             k_ncf=-math.expm1(-dt / p.tau_ncf_s),
             k_int=dt / (p.tau_ncf_s * p.tau_bias_s) if p.motion_bias else 0.0,
             k_rest=k_rest,
@@ -227,7 +229,7 @@ class QuaternionCcf(OrientationFilter):
     name = 'ccf'
     __slots__ = (
         '_b', '_c', '_dn', '_g_lp', '_gyro_lp', '_heading_known', '_mag_bounds', '_mag_candidate', '_mag_disturbed_s',
-        '_mag_have_ref', '_mag_ref', '_rest_s', '_u_bias', '_var_head', '_var_incl',
+        '_mag_have_ref', '_mag_ref', '_n_init', '_rest_s', '_u_bias', '_var_head', '_var_incl',
     )
     params: CcfParams
 
@@ -241,6 +243,7 @@ class QuaternionCcf(OrientationFilter):
         self._dn = (0.0, 0.0, 0.0)
         self._gyro_lp = (0.0, 0.0, 0.0)
         self._rest_s = 0.0
+        self._n_init = 0
         self._forget_mag_reference()
         self._var_incl = 0.0
         self._var_head = 0.0
@@ -314,6 +317,9 @@ class QuaternionCcf(OrientationFilter):
         self._gyro_lp = self._b
         self._rest_s = 0.0
         self._var_incl = 0.0
+        # Start-up: the blends begin as running means (gain 1/n) and hand over to their time constants once 1/n
+        # falls below them, so the first seconds average the samples instead of trusting the first one.
+        self._n_init = 1
 
     def _heading_absolute(self) -> bool:
         return self._heading_known
@@ -353,10 +359,21 @@ class QuaternionCcf(OrientationFilter):
         ex = (fy * vz - fz * vy) * ig
         ey = (fz * vx - fx * vz) * ig
         ez = (fx * vy - fy * vx) * ig
-        k = c.k_acc
-        cx = k * ex
-        cy = k * ey
-        cz = k * ez
+        ni = self._n_init
+        if ni:
+            ni += 1
+            kn = 1.0 / ni
+            k_acc = kn if kn > c.k_acc else c.k_acc
+            k_mag = kn if kn > c.k_mag else c.k_mag
+            k_lp = kn if kn > c.k_lp else c.k_lp
+            self._n_init = ni if kn > c.k_min else 0
+        else:
+            k_acc = c.k_acc
+            k_mag = c.k_mag
+            k_lp = c.k_lp
+        cx = k_acc * ex
+        cy = k_acc * ey
+        cz = k_acc * ez
         # NCF tilt error: its attitude is exp(dn) ⊗ q (dn: horizontal world-frame rotation), so its error is e minus
         # dn seen in the body frame.
         nx = ex - dnx * r0x - dny * r1x
@@ -376,7 +393,7 @@ class QuaternionCcf(OrientationFilter):
                 # Horizontal field in the world frame must point to +y (north in ENU). The correction is a rotation
                 # about world up (v in body coordinates): heading only, never tilt.
                 d = atan2(r0x * mx + r0y * my + r0z * mz, r1x * mx + r1y * my + r1z * mz)
-                kd = c.k_mag * d
+                kd = k_mag * d
                 # NCF heading error (its heading is the LCF's turned by dnz about world up), limited: a larger one
                 # means the heading has not converged yet, which is no information about the bias.
                 hn = d - dnz
@@ -503,7 +520,7 @@ class QuaternionCcf(OrientationFilter):
         if acc_n2:
             # The sample is taken at the step's end, the rectangle rule's frame half a step ahead: rotate it back
             # by half the gyro step, then blend.
-            k = c.k_lp
+            k = k_lp
             fx += k * (ax - 0.5 * (ry * az - rz * ay) - fx)
             fy += k * (ay - 0.5 * (rz * ax - rx * az) - fy)
             fz += k * (az - 0.5 * (rx * ay - ry * ax) - fz)
