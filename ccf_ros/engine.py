@@ -2,6 +2,9 @@
 
 No ROS import: the adapters convert messages to floats, call :meth:`ImuEngine.on_imu`/:meth:`ImuEngine.on_mag`
 in arrival order, and convert the :class:`Output` back. Same input in the same order -> same output, bit for bit.
+
+Every IMU message is answered once an orientation exists, like imu_tools does: a sample that cannot advance the
+filter (repeated or backward stamp, non-finite gyro) gets the current orientation, and is counted.
 """
 
 from __future__ import annotations
@@ -10,8 +13,9 @@ import math
 from typing import NamedTuple
 
 from .core.base import ANSWERED_BELOW, OrientationFilter, Status
+from .core.ccf import GRAVITY_M_S2
 from .core.pairing import MagPairer
-from .core.quaternion import to_xyzw
+from .core.quaternion import WORLD_FRAMES, level_quat, quat_from_acc_mag_scalar, relevel, to_xyzw
 from .settings import AdapterSettings
 
 #: A stamp this much (s) before the latest one is a clock jump, not a late sample: the filter restarts.
@@ -19,38 +23,51 @@ JUMP_BACK_RESET_S = 1.0
 #: ... and this many such samples in a row (one stray stamp is just skipped).
 JUMP_BACK_SAMPLES = 3
 
+Vec3 = tuple[float, float, float]
+
 
 class Output(NamedTuple):
     """One answered IMU sample.
 
     Attributes:
-        orientation_xyzw: body->world orientation in message order.
+        orientation_xyzw: body->world orientation in message order (turned by ``yaw_offset - declination``).
         covariance: row-major 3x3 orientation covariance (rad²), 9 values.
         bias: gyro-bias estimate, rad/s, body frame.
-        status: the core's :class:`~ccf_ros.core.base.Status`.
+        status: the core's :class:`~ccf_ros.core.base.Status` (a ``SKIPPED_*`` value: the sample could not advance
+            the filter and is answered with the current orientation).
+        angular_velocity: rad/s to publish instead of the input's (bias subtracted), or None to keep the input's.
+        linear_acceleration: m/s² to publish instead of the input's (gravity removed), or None to keep the input's.
     """
 
     orientation_xyzw: tuple[float, float, float, float]
     covariance: tuple[float, ...]
-    bias: tuple[float, float, float]
+    bias: Vec3
     status: int
+    angular_velocity: Vec3 | None = None
+    linear_acceleration: Vec3 | None = None
 
 
 class ImuEngine:
-    """Magnetometer pairing + filter + covariance for a stream of IMU/magnetometer messages."""
+    """Magnetometer calibration and pairing + filter + output shaping for a stream of IMU/magnetometer messages."""
 
     def __init__(self, filt: OrientationFilter, settings: AdapterSettings | None = None) -> None:
         self.filter = filt
         self.settings = settings or AdapterSettings()
         self.pairer = MagPairer(timeout_s=self.settings.mag_timeout_s)
         self.n_in = 0
+        #: outputs produced (every IMU sample once an orientation exists)
+        self.n_out = 0
         self.n_resets_jump = 0
+        #: samples answered with the current orientation although they could not advance the filter
+        self.n_answered_stale = 0
         self._t_const = 0.0
         self._t_last = -math.inf
         self._n_far_back = 0
         self._counts_before = [0] * len(filt.counts)
         self._no_acc_before = 0
         self._no_mag_before = 0
+        self._nonfinite_before = 0
+        self._stateless_q: tuple[float, float, float, float] | None = None
         self.set_settings(self.settings)
 
     def set_settings(self, settings: AdapterSettings) -> None:
@@ -59,34 +76,56 @@ class ImuEngine:
         self.pairer.timeout_s = settings.mag_timeout_s
         self._constant_dt = settings.constant_dt
         self._stddev = settings.orientation_stddev
+        bx, by, bz = settings.mag_bias
+        s = settings.mag_soft_iron
+        identity = s == (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+        self._mag_cal = None if (bx == by == bz == 0.0 and identity) else (bx, by, bz, *s)
+        turn = settings.yaw_turn_rad
+        # q_out = Rz(turn) ⊗ q: a rotation about world up, applied in one place (to_output).
+        self._turn = None if turn == 0.0 else (math.cos(0.5 * turn), math.sin(0.5 * turn))
+        self._remove_g = settings.remove_gravity_vector
+        self._stateless = settings.stateless
+        self._corrected_rate = settings.bias_corrected_rate
 
     def reset(self) -> None:
-        """Fresh filter state and no magnetometer history (parameters kept); counters keep counting."""
+        """Fresh filter state (parameters kept); counters keep counting. Magnetometer samples stay paired."""
         f = self.filter
         self._counts_before = [a + b for a, b in zip(self._counts_before, f.counts, strict=True)]
         self._no_acc_before += f.n_no_acc
         self._no_mag_before += f.n_no_mag
+        self._nonfinite_before += f.n_nonfinite_resets
         self._n_far_back = 0
         f.reset()
-        self.pairer.reset()
         self._t_const = 0.0
         self._t_last = -math.inf
+        self._stateless_q = None
 
-    def on_mag(self, t_s: float, field: tuple[float, float, float]) -> None:
-        """A magnetometer message: stamp (s), field (any unit, body frame)."""
+    def on_mag(self, t_s: float, field: Vec3) -> None:
+        """A magnetometer message: stamp (s), field (any unit, body frame), calibrated here before anything else."""
+        c = self._mag_cal
+        if c is not None:
+            mx, my, mz = field[0] - c[0], field[1] - c[1], field[2] - c[2]
+            field = (
+                c[3] * mx + c[4] * my + c[5] * mz,
+                c[6] * mx + c[7] * my + c[8] * mz,
+                c[9] * mx + c[10] * my + c[11] * mz,
+            )
         self.pairer.add(t_s, field)
 
-    def on_imu(
-        self, t_s: float, gyr: tuple[float, float, float], acc: tuple[float, float, float]
-    ) -> Output | None:
-        """An IMU message: stamp (s), rate (rad/s), specific force (m/s²). None if the sample was skipped."""
+    def on_imu(self, t_s: float, gyr: Vec3, acc: Vec3) -> Output | None:
+        """An IMU message: stamp (s), rate (rad/s), specific force (m/s²).
+
+        Returns the output, or None before the first usable accelerometer sample (no orientation exists yet).
+        """
         self.n_in += 1
         if t_s < self._t_last - JUMP_BACK_RESET_S:
             # Far behind: a stray stamp is skipped by the filter; several in a row mean the clock jumped back (bag
-            # loop, simulation reset), and the filter starts over instead of waiting for time to catch up.
+            # loop, simulation reset), and the filter starts over instead of waiting for time to catch up. The
+            # magnetometer samples that came with the new stamps stay: the restart initialises heading from them.
             self._n_far_back += 1
             if self._n_far_back >= JUMP_BACK_SAMPLES:
                 self.reset()
+                self.pairer.restart(t_s)
                 self.n_resets_jump += 1
         else:
             self._n_far_back = 0
@@ -98,25 +137,84 @@ class ImuEngine:
             self._t_const += self._constant_dt
             t_s = self._t_const
         f = self.filter
+        if self._stateless:
+            return self._stateless_output(t_s, gyr, acc, mag)
         status = f.update(t_s, gyr, acc, mag)
         if status >= ANSWERED_BELOW:
-            return None
+            if not f.initialized:
+                return None
+            self.n_answered_stale += 1
+        return self._output(f.quaternion, status, gyr, acc)
+
+    def _output(self, q: tuple[float, float, float, float], status: int, gyr: Vec3, acc: Vec3) -> Output:
+        """Shape the orientation ``q`` ([w, x, y, z], world frame) and the sample into an :class:`Output`."""
+        f = self.filter
         sd = self._stddev
         vr, vp, vy = (sd * sd,) * 3 if sd > 0.0 else f.orientation_variance
-        return Output(to_xyzw(f.quaternion), (vr, 0.0, 0.0, 0.0, vp, 0.0, 0.0, 0.0, vy), f.gyro_bias, status)
+        bias = f.gyro_bias
+        rate = None
+        if self._corrected_rate:
+            rate = (gyr[0] - bias[0], gyr[1] - bias[1], gyr[2] - bias[2])
+        lin = None
+        if self._remove_g:
+            qw, qx, qy, qz = q
+            # World up in the body frame (REP-145: +g up at rest) from the filter's frame; NED's z points down.
+            g = -GRAVITY_M_S2 if f.params.world_frame == 'ned' else GRAVITY_M_S2
+            lin = (
+                acc[0] - g * 2.0 * (qx * qz - qw * qy),
+                acc[1] - g * 2.0 * (qy * qz + qw * qx),
+                acc[2] - g * (qw * qw - qx * qx - qy * qy + qz * qz),
+            )
+        turn = self._turn
+        if turn is not None:
+            c, s = turn
+            qw, qx, qy, qz = q
+            q = (c * qw - s * qz, c * qx - s * qy, c * qy + s * qx, c * qz + s * qw)
+        self.n_out += 1
+        return Output(to_xyzw(q), (vr, 0.0, 0.0, 0.0, vp, 0.0, 0.0, 0.0, vy), bias, status, rate, lin)
+
+    def _stateless_output(
+        self, t_s: float, gyr: Vec3, acc: Vec3, mag: Vec3 | None
+    ) -> Output | None:
+        """imu_tools' ``stateless``: the orientation of this sample's accelerometer (+ magnetometer) alone."""
+        ax, ay, az = acc
+        n2 = ax * ax + ay * ay + az * az
+        status = int(Status.UPDATED)
+        if n2 > 1e-12 and n2 - n2 == 0.0:
+            q = None
+            if mag is not None and self.filter.params.use_mag:
+                q = quat_from_acc_mag_scalar(ax, ay, az, mag[0], mag[1], mag[2], True)
+            if q is None:
+                q = relevel(self._stateless_q, ax, ay, az) if self._stateless_q is not None else level_quat(ax, ay, az)
+            self._stateless_q = q
+        elif self._stateless_q is None:
+            return None
+        else:
+            status = int(Status.SKIPPED_NO_ACC_YET)
+            self.n_answered_stale += 1
+        pw, px, py, pz = WORLD_FRAMES[self.filter.params.world_frame]
+        qw, qx, qy, qz = self._stateless_q
+        # Internal ENU -> the configured world frame, as OrientationFilter.quaternion does.
+        q_world = (
+            pw * qw - px * qx - py * qy - pz * qz,
+            pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx,
+            pw * qz + px * qy - py * qx + pz * qw,
+        )
+        return self._output(q_world, status, gyr, acc)
 
     def counts(self) -> list[int]:
         """Samples per :class:`~ccf_ros.core.base.Status` since this engine was made."""
         return [a + b for a, b in zip(self._counts_before, self.filter.counts, strict=True)]
 
     def skipped_by_reason(self) -> dict[str, int]:
-        """Counts of skipped samples by reason name (only non-zero ones)."""
+        """Counts of samples that could not advance the filter, by reason name (only non-zero ones)."""
         c = self.counts()
         return {Status(i).name.lower(): c[i] for i in range(ANSWERED_BELOW, len(c)) if c[i]}
 
     def answered(self) -> int:
-        """Number of samples that produced an output."""
-        return sum(self.counts()[:ANSWERED_BELOW])
+        """Number of IMU samples answered with an output (those that could not advance the filter included)."""
+        return self.n_out
 
     @property
     def n_no_acc(self) -> int:
@@ -127,3 +225,8 @@ class ImuEngine:
     def n_no_mag(self) -> int:
         """Samples without heading correction (unusable magnetometer)."""
         return self._no_mag_before + self.filter.n_no_mag
+
+    @property
+    def n_nonfinite_resets(self) -> int:
+        """Times the filter state became non-finite and was re-initialised."""
+        return self._nonfinite_before + self.filter.n_nonfinite_resets

@@ -5,6 +5,7 @@ The node, ``ccf replay --param/--params-file`` and ``config/ccf.yaml`` all use t
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -14,16 +15,50 @@ from .core.registry import all_param_names, make_filter
 from .core.registry import defaults as filter_defaults
 from .errors import ParameterError
 
-#: Settings of the adapters (node and replay), with defaults.
-ADAPTER_DEFAULTS: dict[str, Any] = {
+_IDENTITY3 = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+
+#: Settings of the shared engine (node and replay alike), with defaults.
+ENGINE_DEFAULTS: dict[str, Any] = {
     'mag_timeout_s': 0.5,
     'constant_dt': 0.0,
     'orientation_stddev': 0.0,
+    'mag_bias_x': 0.0,
+    'mag_bias_y': 0.0,
+    'mag_bias_z': 0.0,
+    'mag_soft_iron': _IDENTITY3,
+    'yaw_offset': 0.0,
+    'declination': 0.0,
+    'remove_gravity_vector': False,
+    'stateless': False,
+    'bias_corrected_rate': False,
+}
+
+#: Settings only the node uses (replay accepts and ignores them, so one parameters file serves both).
+NODE_DEFAULTS: dict[str, Any] = {
     'publish_debug_topics': False,
     'gyro_bias_rate_hz': 50.0,
     'qos_reliability': 'best_effort',
     'qos_depth': 50,
+    'publish_tf': False,
+    'fixed_frame': 'odom',
+    'reverse_tf': False,
 }
+
+#: imu_tools gains with no ccf meaning: accepted (a YAML written for imu_tools applies unchanged) and, when set to a
+#: value other than this default, logged once by the node with the ccf parameter that plays that role.
+IMU_TOOLS_GAINS: dict[str, tuple[Any, str]] = {
+    'gain': (0.1, 'tau_acc_s and tau_mag_s (time constants, s, instead of a gradient gain)'),
+    'zeta': (0.0, 'tau_bias_s and motion_bias (the NCF learns the gyro bias)'),
+    'gain_acc': (0.01, 'tau_acc_s (inclination time constant, s)'),
+    'gain_mag': (0.01, 'tau_mag_s (heading time constant, s)'),
+    'bias_alpha': (0.01, 'rest_tau_s (bias update at rest, s)'),
+    'do_adaptive_gain': (True, 'tau_acc_lp_s (linear accelerations are always rejected by the inertial-frame low-pass)'),
+    'do_bias_estimation': (True, 'rest_bias and motion_bias; with the complementary-filter executable it also '
+                                 'sets bias_corrected_rate'),
+}
+
+#: Every non-filter setting (engine, node, accepted imu_tools gains) with its default.
+ADAPTER_DEFAULTS: dict[str, Any] = {**ENGINE_DEFAULTS, **NODE_DEFAULTS, **{k: v for k, (v, _) in IMU_TOOLS_GAINS.items()}}
 
 #: One line per setting, for config/ccf.yaml, the node's parameter descriptors and the README.
 DESCRIPTIONS: dict[str, str] = {
@@ -68,10 +103,23 @@ DESCRIPTIONS: dict[str, str] = {
     'mag_timeout_s': 'magnetometer samples older than this (s) are not paired with an IMU sample',
     'constant_dt': 'fixed sample period (s) instead of header stamps; 0 = use header stamps',
     'orientation_stddev': 'fixed orientation std (rad) for the covariance; 0 = the filter\'s own estimate',
-    'publish_debug_topics': 'node: also publish imu/rpy (roll, pitch, yaw in rad)',
+    'mag_bias_x': 'magnetometer hard-iron offset, x, T (subtracted before everything else; ccf calibrate-mag)',
+    'mag_bias_y': 'magnetometer hard-iron offset, y, T',
+    'mag_bias_z': 'magnetometer hard-iron offset, z, T',
+    'mag_soft_iron': 'magnetometer soft-iron matrix, row-major 3x3, applied after the offset: m = S (m_raw - b)',
+    'yaw_offset': 'output turned by yaw_offset - declination about world up, rad (imu_tools semantics)',
+    'declination': 'local magnetic declination, rad (east positive); see yaw_offset',
+    'remove_gravity_vector': 'publish linear_acceleration with gravity (9.80665 m/s^2, up) removed',
+    'stateless': 'publish the orientation computed from each accelerometer (+ magnetometer) sample alone (debug)',
+    'bias_corrected_rate': 'publish angular_velocity minus the gyro-bias estimate',
+    'publish_debug_topics': 'node: also publish imu/rpy/filtered and imu/rpy/raw (roll, pitch, yaw in rad)',
     'gyro_bias_rate_hz': 'node: highest rate of imu/gyro_bias, Hz (the bias changes over seconds); 0 = every sample',
     'qos_reliability': 'node: input QoS reliability, best_effort (sensor data) or reliable',
     'qos_depth': 'node: input QoS queue depth',
+    'publish_tf': 'node: broadcast the orientation as a transform fixed_frame -> IMU frame on /tf',
+    'fixed_frame': 'node: parent frame of the published transform',
+    'reverse_tf': 'node: publish the inverse transform (IMU frame -> fixed_frame)',
+    **{name: f'imu_tools gain, accepted; ccf uses {role}' for name, (_, role) in IMU_TOOLS_GAINS.items()},
 }
 
 
@@ -84,19 +132,82 @@ def all_defaults() -> dict[str, Any]:
 
 @dataclass(frozen=True)
 class AdapterSettings:
-    """Adapter settings shared by node and replay (see :data:`DESCRIPTIONS`)."""
+    """Engine settings shared by node and replay (see :data:`DESCRIPTIONS` for each)."""
 
     mag_timeout_s: float = 0.5
     constant_dt: float = 0.0
     orientation_stddev: float = 0.0
+    mag_bias: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    mag_soft_iron: tuple[float, ...] = _IDENTITY3
+    yaw_offset: float = 0.0
+    declination: float = 0.0
+    remove_gravity_vector: bool = False
+    stateless: bool = False
+    bias_corrected_rate: bool = False
 
     def __post_init__(self) -> None:
+        for name in ('mag_timeout_s', 'constant_dt', 'orientation_stddev', 'yaw_offset', 'declination'):
+            value = getattr(self, name)
+            if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
+                raise ValueError(f'{name} must be a finite number, got {value!r}')
         if not self.mag_timeout_s > 0:
             raise ValueError(f'mag_timeout_s must be > 0, got {self.mag_timeout_s!r}')
         if not self.constant_dt >= 0:
             raise ValueError(f'constant_dt must be >= 0, got {self.constant_dt!r}')
         if not self.orientation_stddev >= 0:
             raise ValueError(f'orientation_stddev must be >= 0, got {self.orientation_stddev!r}')
+        if len(self.mag_bias) != 3 or not all(math.isfinite(v) for v in self.mag_bias):
+            raise ValueError(f'mag_bias_x/y/z must be finite numbers, got {self.mag_bias!r}')
+        if len(self.mag_soft_iron) != 9 or not all(math.isfinite(v) for v in self.mag_soft_iron):
+            raise ValueError(f'mag_soft_iron must be 9 finite numbers (row-major 3x3), got {self.mag_soft_iron!r}')
+        for name in ('remove_gravity_vector', 'stateless', 'bias_corrected_rate'):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f'{name} must be a bool, got {getattr(self, name)!r}')
+
+    @property
+    def yaw_turn_rad(self) -> float:
+        """The output's turn about world up, rad: ``yaw_offset - declination`` (imu_tools' convention)."""
+        return self.yaw_offset - self.declination
+
+
+def _number(name: str, value: Any) -> float:
+    """``value`` as a float (ints from YAML/ROS integer parameters included), or ValueError naming ``name``."""
+    if isinstance(value, bool):
+        raise ValueError(f'{name} must be a number, got {value!r}')
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f'{name} must be a number, got {value!r}') from None
+
+
+def _flag(name: str, value: Any) -> bool:
+    if isinstance(value, bool):
+        return value
+    if isinstance(value, str) and value.strip().lower() in ('true', 'false', '1', '0', 'yes', 'no', 'on', 'off'):
+        return value.strip().lower() in ('true', '1', 'yes', 'on')
+    raise ValueError(f'{name} must be true or false, got {value!r}')
+
+
+def adapter_settings(values: Mapping[str, Any]) -> AdapterSettings:
+    """:class:`AdapterSettings` from flat settings (missing names keep their defaults; others are ignored)."""
+    kw: dict[str, Any] = {}
+    for name in ('mag_timeout_s', 'constant_dt', 'orientation_stddev', 'yaw_offset', 'declination'):
+        if name in values:
+            kw[name] = _number(name, values[name])
+    if any(f'mag_bias_{a}' in values for a in 'xyz'):
+        kw['mag_bias'] = tuple(_number(f'mag_bias_{a}', values.get(f'mag_bias_{a}', 0.0)) for a in 'xyz')
+    if 'mag_soft_iron' in values:
+        m = values['mag_soft_iron']
+        if isinstance(m, str):
+            m = [v for v in m.strip().strip('[]()').split(',') if v.strip()]
+        try:
+            kw['mag_soft_iron'] = tuple(_number('mag_soft_iron', v) for v in m)
+        except TypeError:
+            raise ValueError(f'mag_soft_iron must be 9 numbers, got {m!r}') from None
+    for name in ('remove_gravity_vector', 'stateless', 'bias_corrected_rate'):
+        if name in values:
+            kw[name] = _flag(name, values[name])
+    return AdapterSettings(**kw)
 
 
 def build(settings: Mapping[str, Any], *, strict: bool = True) -> tuple[OrientationFilter, AdapterSettings]:
@@ -126,14 +237,7 @@ def _build(settings: Mapping[str, Any], *, strict: bool) -> tuple[OrientationFil
         else:
             raise ValueError(f'unknown parameter {name!r}; known: {", ".join(sorted(known | set(ADAPTER_DEFAULTS)))}')
     filt = make_filter(filt_part, strict=strict)
-    kw = {}
-    for name in ('mag_timeout_s', 'constant_dt', 'orientation_stddev'):
-        if name in adapter:
-            try:
-                kw[name] = float(adapter[name])
-            except (TypeError, ValueError):
-                raise ValueError(f'{name} must be a number, got {adapter[name]!r}') from None
-    return filt, AdapterSettings(**kw)
+    return filt, adapter_settings(adapter)
 
 
 def config_yaml() -> str:
@@ -145,7 +249,8 @@ def config_yaml() -> str:
         '# ccf_ros parameters: every parameter with its default. Used by',
         '#   ccf_node --ros-args --params-file config/ccf.yaml',
         '#   ccf replay IN -o OUT --params-file config/ccf.yaml',
-        'ccf_node:',
+        '# Keyed /** so that it applies to the node under any name and namespace.',
+        '/**:',
         '  ros__parameters:',
     ]
     for name, value in all_defaults().items():

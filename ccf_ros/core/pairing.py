@@ -33,6 +33,16 @@ class MagPairer:
         self._m: tuple[float, float, float] | None = None
         self._pending: deque[tuple[float, tuple[float, float, float]]] = deque(maxlen=256)
 
+    def restart(self, t_s: float) -> None:
+        """The clock jumped back to ``t_s`` (bag loop, simulation reset): forget the sample in use and every pending
+        one from the old timeline, keep the pending samples that belong to the new one (stamps up to ``t_s`` plus
+        the tolerance and not older than the timeout), so the restart initialises with the magnetometer."""
+        keep = [(tm, m) for tm, m in self._pending if t_s - self.timeout_s <= tm <= t_s + self.tolerance_s]
+        self._t = -math.inf
+        self._m = None
+        self._pending.clear()
+        self._pending.extend(keep)
+
     def add(self, t_s: float, mag: tuple[float, float, float]) -> None:
         """Record a magnetometer sample at ``t_s`` (s)."""
         # A sample that arrives ahead of the IMU stream waits until an IMU stamp reaches it.
