@@ -1,0 +1,103 @@
+"""Is the reported orientation covariance calibrated? Reported 1-sigma vs measured RMSE on the shared BROAD trials.
+
+Per trial, over the moving samples: inclination -- sqrt(mean(var_roll + var_pitch)) vs the inclination RMSE; heading
+-- sqrt(mean(var_yaw)) vs the heading RMSE (9-D), and in 6-D (``--no-mag`` like) the yaw variance, documented as
+relative, vs the heading RMSE after fitting one heading offset per trial (the drift). Ratios near 1 mean a
+downstream EKF can trust the IMU's covariance. Also the 48 Hz / 286 Hz ratio of the reported sigma (rate independence).
+
+Usage: python benchmarks/covariance.py [--shared ../shared/data/broad] [NAME=VALUE ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+from ccf_ros.core import run_batch
+from ccf_ros.core.metrics import error_angles
+from ccf_ros.core.quaternion import quat_mul
+from ccf_ros.offline.bagio import read_bools, read_imu_arrays, read_orientations
+from ccf_ros.offline.evaluate import align, mask_at
+from ccf_ros.settings import build
+
+DEFAULT_SHARED = Path(__file__).resolve().parents[2] / 'shared' / 'data' / 'broad'
+
+
+def heading_offset_fit(q_est: np.ndarray, q_ref: np.ndarray) -> np.ndarray:
+    """``q_ref`` turned about world up by the constant angle that minimises the RMS total error (6-D scoring)."""
+    def cost(psi: float) -> float:
+        qz = np.array([np.cos(psi / 2), 0.0, 0.0, np.sin(psi / 2)])
+        return float(np.sqrt(np.mean(error_angles(q_est, quat_mul(qz, q_ref))[0] ** 2)))
+
+    grid = np.linspace(-np.pi, np.pi, 73)
+    best = grid[int(np.argmin([cost(p) for p in grid]))]
+    lo, hi = best - 0.1, best + 0.1
+    for _ in range(40):
+        m1, m2 = lo + (hi - lo) / 3, hi - (hi - lo) / 3
+        lo, hi = (lo, m2) if cost(m1) < cost(m2) else (m1, hi)
+    psi = 0.5 * (lo + hi)
+    return quat_mul(np.array([np.cos(psi / 2), 0.0, 0.0, np.sin(psi / 2)]), q_ref)
+
+
+def run_trial(args: tuple[Path, dict[str, str]]) -> tuple[str, dict[str, float]]:
+    trial, settings = args
+    imu = read_imu_arrays(trial)
+    t_ref, q_ref = read_orientations(trial, '/ground_truth/pose')
+    mask = mask_at(t_ref, *read_bools(trial, '/ground_truth/moving'))
+    out: dict[str, float] = {}
+    for label, step, use_mag in (('9d', 1, True), ('9d48', 6, True), ('6d', 1, False)):
+        sl = slice(None, None, step)
+        filt, _ = build({**settings, 'use_mag': use_mag})
+        r = run_batch(filt, imu.t_s[sl], imu.gyr[sl], imu.acc[sl], imu.mag[sl] if use_mag else None)
+        q = align(imu.t_s[sl][r.answered], r.quat[r.answered], t_ref, q_ref)
+        var = np.full((len(t_ref), 3), np.nan)
+        idx = np.searchsorted(imu.t_s[sl][r.answered], t_ref)
+        ok = idx < r.answered.sum()
+        var[ok] = r.variance[r.answered][idx[ok]]
+        sel = mask & np.all(np.isfinite(q_ref), axis=1) & np.all(np.isfinite(q), axis=1) & np.all(np.isfinite(var), 1)
+        ref = heading_offset_fit(q[sel], q_ref[sel]) if not use_mag else q_ref[sel]
+        _, head, incl = error_angles(q[sel], ref)
+        out[f'{label}_incl_rmse'] = float(np.degrees(np.sqrt(np.mean(incl**2))))
+        out[f'{label}_head_rmse'] = float(np.degrees(np.sqrt(np.mean(head**2))))
+        out[f'{label}_incl_sigma'] = float(np.degrees(np.sqrt(np.mean(var[sel, 0] + var[sel, 1]))))
+        out[f'{label}_head_sigma'] = float(np.degrees(np.sqrt(np.mean(var[sel, 2]))))
+    return trial.name, out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument('--shared', type=Path, default=DEFAULT_SHARED)
+    ap.add_argument('params', nargs='*', help='NAME=VALUE filter settings')
+    a = ap.parse_args()
+    settings = dict(p.split('=', 1) for p in a.params)
+    trials = sorted(p for p in a.shared.iterdir() if p.is_dir() and p.name[:2].isdigit())
+    with ProcessPoolExecutor(2) as ex:
+        res = dict(ex.map(run_trial, [(t, settings) for t in trials]))
+    print(f'{"trial":36s} | {"inclination sigma / RMSE, deg":30s} | {"heading 9-D sigma / RMSE":26s} | '
+          f'{"heading 6-D (relative) sigma / RMSE":34s}')
+    ratios: dict[str, list[float]] = {'incl': [], 'head': [], 'head6': [], 'rate': []}
+    for name, r in res.items():
+        ri = r['9d_incl_sigma'] / r['9d_incl_rmse']
+        rh = r['9d_head_sigma'] / r['9d_head_rmse']
+        r6 = r['6d_head_sigma'] / r['6d_head_rmse']
+        ratios['incl'].append(ri)
+        ratios['head'].append(rh)
+        ratios['head6'].append(r6)
+        ratios['rate'].append(np.hypot(r['9d48_incl_sigma'], r['9d48_head_sigma'])
+                              / np.hypot(r['9d_incl_sigma'], r['9d_head_sigma']))
+        print(f'{name[:36]:36s} | {r["9d_incl_sigma"]:5.2f} / {r["9d_incl_rmse"]:5.2f} = {ri:4.2f}x{"":12s} | '
+              f'{r["9d_head_sigma"]:5.2f} / {r["9d_head_rmse"]:5.2f} = {rh:4.2f}x{"":4s} | '
+              f'{r["6d_head_sigma"]:5.2f} / {r["6d_head_rmse"]:5.2f} = {r6:4.2f}x')
+    for key, label in (('incl', 'inclination'), ('head', 'heading 9-D'), ('head6', 'heading 6-D (relative)')):
+        v = np.array(ratios[key])
+        print(f'{label:24s}: reported/measured geometric mean {np.exp(np.mean(np.log(v))):.2f}, '
+              f'range {v.min():.2f}-{v.max():.2f}')
+    v = np.array(ratios['rate'])
+    print(f'reported sigma 48 Hz / 286 Hz: {v.min():.3f}-{v.max():.3f} (mean {v.mean():.3f})')
+
+
+if __name__ == '__main__':
+    main()
