@@ -1,7 +1,8 @@
 """Accuracy of the default filter on the shared BROAD trials, through ``ccf replay``'s engine, at 286/95/48 Hz.
 
-Usage: python benchmarks/broad_accuracy.py [--shared ../shared/data/broad] [--rates 1,3,6] [-- NAME=VALUE ...]
-Prints per-trial total/heading/inclination RMSE (deg) and the mean, as in shared/data/broad/README.md.
+Usage: python benchmarks/broad_accuracy.py [--shared ../shared/data/broad] [--rates 1,3,6] [--no-6d] [NAME=VALUE ...]
+Prints per-trial total/heading/inclination RMSE (deg) and the mean, beside the VQF columns of
+shared/data/broad/README.md; and the 6-D run (no magnetometer) scored with one heading offset fitted per trial.
 """
 
 from __future__ import annotations
@@ -14,35 +15,50 @@ from pathlib import Path
 import numpy as np
 
 from ccf_ros.core import run_batch
-from ccf_ros.core.metrics import summarize
+from ccf_ros.core.metrics import fit_heading_offset, summarize
 from ccf_ros.offline.bagio import read_bools, read_imu_arrays, read_orientations
 from ccf_ros.offline.evaluate import align, mask_at
 from ccf_ros.settings import build
 
 DEFAULT_SHARED = Path(__file__).resolve().parents[2] / 'shared' / 'data' / 'broad'
+#: VQF's figures on these trials (shared/data/broad/README.md): online total, inclination, heading; 6-D fitted total.
+VQF = {
+    '02': (1.38, 0.43, 1.31, 0.63), '05': (0.99, 0.35, 0.92, 0.67), '07': (1.75, 1.02, 1.43, 1.55),
+    '11': (0.90, 0.42, 0.80, 0.68), '16': (0.74, 0.54, 0.51, 0.66), '25': (1.62, 0.38, 1.57, 1.74),
+    '27': (6.73, 0.37, 6.72, 1.70), '30': (2.57, 1.25, 2.25, 5.22), '33': (3.75, 0.60, 3.70, 2.31),
+}
 
 
-def run_trial(args: tuple[Path, list[int], dict[str, str]]) -> tuple[str, dict[int, tuple[float, float, float, int]]]:
-    trial, steps, settings = args
+def run_trial(args: tuple[Path, list[int], dict[str, str], bool]) -> tuple[str, dict[str, tuple[float, ...]]]:
+    trial, steps, settings, six_d = args
     imu = read_imu_arrays(trial)
     t_ref, q_ref = read_orientations(trial, '/ground_truth/pose')
     mask = mask_at(t_ref, *read_bools(trial, '/ground_truth/moving'))
-    out = {}
-    for step in steps:
+    out: dict[str, tuple[float, ...]] = {}
+    runs = [(str(step), step, True) for step in steps] + ([('6d', 1, False)] if six_d else [])
+    for key, step, use_mag in runs:
         sl = slice(None, None, step)
-        filt, _ = build(settings)
-        r = run_batch(filt, imu.t_s[sl], imu.gyr[sl], imu.acc[sl], imu.mag[sl])
+        filt, _ = build({**settings, 'use_mag': use_mag} if not use_mag else settings)
+        r = run_batch(filt, imu.t_s[sl], imu.gyr[sl], imu.acc[sl], imu.mag[sl] if use_mag else None)
         # Scored at every reference sample, estimate interpolated (decimated runs) as `ccf eval` does.
-        s = summarize(align(imu.t_s[sl][r.answered], r.quat[r.answered], t_ref, q_ref), q_ref, mask)
+        q = align(imu.t_s[sl][r.answered], r.quat[r.answered], t_ref, q_ref)
+        s = summarize(q, q_ref, mask)
         nan_out = int((~np.isfinite(r.quat).all(axis=1)).sum())
-        out[step] = (s.total_rmse_deg, s.heading_rmse_deg, s.inclination_rmse_deg, nan_out)
+        fitted = float('nan')
+        if not use_mag:
+            sel = mask & np.all(np.isfinite(q_ref), axis=1) & np.all(np.isfinite(q), axis=1)
+            q_fit = q_ref.copy()
+            q_fit[sel] = fit_heading_offset(q[sel], q_ref[sel])
+            fitted = summarize(q, q_fit, mask).total_rmse_deg
+        out[key] = (s.total_rmse_deg, s.heading_rmse_deg, s.inclination_rmse_deg, nan_out, fitted)
     return trial.name, out
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser()
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument('--shared', type=Path, default=DEFAULT_SHARED)
     ap.add_argument('--rates', default='1,3,6', help='decimation steps (1 = 286 Hz, 3 = 95 Hz, 6 = 48 Hz)')
+    ap.add_argument('--no-6d', action='store_true', help='skip the run without magnetometer')
     ap.add_argument('params', nargs='*', help='NAME=VALUE filter settings')
     a = ap.parse_args()
     steps = [int(s) for s in a.rates.split(',')]
@@ -50,20 +66,33 @@ def main() -> None:
     trials = sorted(p for p in a.shared.iterdir() if p.is_dir() and p.name[:2].isdigit())
     t0 = time.time()
     with ProcessPoolExecutor(2) as ex:
-        results = dict(ex.map(run_trial, [(t, steps, settings) for t in trials]))
+        results = dict(ex.map(run_trial, [(t, steps, settings, not a.no_6d) for t in trials]))
     for step in steps:
-        print(f'\n== {286 / step:.0f} Hz  settings {settings or "defaults"}')
-        print(f'{"trial":45s} {"total":>7s} {"head":>7s} {"incl":>7s}  unanswered')
+        key = str(step)
+        print(f'\n== {286 / step:.0f} Hz  settings {settings or "defaults"}   (VQF online: total / inclination / heading)')
+        print(f'{"trial":45s} {"total":>7s} {"head":>7s} {"incl":>7s}   {"VQF":>17s}  NaN out')
         for name, res in results.items():
-            tot, head, inc, nan_out = res[step]
-            print(f'{name:45s} {tot:7.2f} {head:7.2f} {inc:7.2f}  {nan_out}')
-        means = np.mean([res[step][:3] for res in results.values()], axis=0)
-        print(f'{"mean":45s} {means[0]:7.2f} {means[1]:7.2f} {means[2]:7.2f}')
+            tot, head, inc, nan_out, _ = res[key]
+            v = VQF.get(name[:2])
+            ref = f'{v[0]:5.2f} {v[1]:5.2f} {v[2]:5.2f}' if v and step == 1 else ''
+            print(f'{name:45s} {tot:7.2f} {head:7.2f} {inc:7.2f}   {ref:>17s}  {nan_out}')
+        means = np.mean([res[key][:3] for res in results.values()], axis=0)
+        vq = np.mean([VQF[n[:2]] for n in results if n[:2] in VQF], axis=0) if step == 1 else None
+        ref = f'{vq[0]:5.2f} {vq[1]:5.2f} {vq[2]:5.2f}' if vq is not None else ''
+        print(f'{"mean":45s} {means[0]:7.2f} {means[1]:7.2f} {means[2]:7.2f}   {ref:>17s}')
     if 1 in steps:
-        base = np.mean([r[1][0] for r in results.values()])
+        base = np.mean([r['1'][0] for r in results.values()])
         for step in steps[1:]:
-            m = np.mean([r[step][0] for r in results.values()])
+            m = np.mean([r[str(step)][0] for r in results.values()])
             print(f'rate ratio {286 / step:.0f} Hz / 286 Hz: {m / base:.3f}')
+    if not a.no_6d:
+        print('\n== 6-D (no magnetometer), 286 Hz: total with one heading offset fitted per trial, inclination')
+        for name, res in results.items():
+            v = VQF.get(name[:2])
+            print(f'{name:45s} {res["6d"][4]:7.2f} {res["6d"][2]:7.2f}   VQF 6D {v[3] if v else float("nan"):5.2f}')
+        m6 = np.mean([r['6d'][4] for r in results.values()])
+        i6 = np.mean([r['6d'][2] for r in results.values()])
+        print(f'{"mean":45s} {m6:7.2f} {i6:7.2f}   VQF 6D {np.mean([v[3] for v in VQF.values()]):5.2f}')
     print(f'({time.time() - t0:.0f} s)')
 
 

@@ -17,29 +17,12 @@ from pathlib import Path
 import numpy as np
 
 from ccf_ros.core import run_batch
-from ccf_ros.core.metrics import error_angles
-from ccf_ros.core.quaternion import quat_mul
+from ccf_ros.core.metrics import error_angles, fit_heading_offset
 from ccf_ros.offline.bagio import read_bools, read_imu_arrays, read_orientations
 from ccf_ros.offline.evaluate import align, mask_at
 from ccf_ros.settings import build
 
 DEFAULT_SHARED = Path(__file__).resolve().parents[2] / 'shared' / 'data' / 'broad'
-
-
-def heading_offset_fit(q_est: np.ndarray, q_ref: np.ndarray) -> np.ndarray:
-    """``q_ref`` turned about world up by the constant angle that minimises the RMS total error (6-D scoring)."""
-    def cost(psi: float) -> float:
-        qz = np.array([np.cos(psi / 2), 0.0, 0.0, np.sin(psi / 2)])
-        return float(np.sqrt(np.mean(error_angles(q_est, quat_mul(qz, q_ref))[0] ** 2)))
-
-    grid = np.linspace(-np.pi, np.pi, 73)
-    best = grid[int(np.argmin([cost(p) for p in grid]))]
-    lo, hi = best - 0.1, best + 0.1
-    for _ in range(40):
-        m1, m2 = lo + (hi - lo) / 3, hi - (hi - lo) / 3
-        lo, hi = (lo, m2) if cost(m1) < cost(m2) else (m1, hi)
-    psi = 0.5 * (lo + hi)
-    return quat_mul(np.array([np.cos(psi / 2), 0.0, 0.0, np.sin(psi / 2)]), q_ref)
 
 
 def run_trial(args: tuple[Path, dict[str, str]]) -> tuple[str, dict[str, float]]:
@@ -58,7 +41,7 @@ def run_trial(args: tuple[Path, dict[str, str]]) -> tuple[str, dict[str, float]]
         ok = idx < r.answered.sum()
         var[ok] = r.variance[r.answered][idx[ok]]
         sel = mask & np.all(np.isfinite(q_ref), axis=1) & np.all(np.isfinite(q), axis=1) & np.all(np.isfinite(var), 1)
-        ref = heading_offset_fit(q[sel], q_ref[sel]) if not use_mag else q_ref[sel]
+        ref = fit_heading_offset(q[sel], q_ref[sel]) if not use_mag else q_ref[sel]
         _, head, incl = error_angles(q[sel], ref)
         out[f'{label}_incl_rmse'] = float(np.degrees(np.sqrt(np.mean(incl**2))))
         out[f'{label}_head_rmse'] = float(np.degrees(np.sqrt(np.mean(head**2))))

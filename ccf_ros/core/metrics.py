@@ -48,6 +48,32 @@ def error_angles(q_est: ArrayLike, q_ref: ArrayLike) -> tuple[np.ndarray, np.nda
     return total, heading, inclination
 
 
+def fit_heading_offset(q_est: ArrayLike, q_ref: ArrayLike) -> np.ndarray:
+    """``q_ref`` (``(N, 4)``) turned about world up by the constant angle that minimises the RMS total error against
+    ``q_est`` (both finite): how 6-D filters, which have no absolute heading, are scored (their heading *drift*)."""
+    q_est = np.asarray(q_est, dtype=float)
+    q_ref = np.asarray(q_ref, dtype=float)
+
+    def turned(psi: float) -> np.ndarray:
+        return quat_mul(np.array([np.cos(psi / 2), 0.0, 0.0, np.sin(psi / 2)]), q_ref)
+
+    def cost(psi: float) -> float:
+        return float(np.mean(error_angles(q_est, turned(psi))[0] ** 2))
+
+    # A coarse grid finds the basin, a golden-section search the minimum (the cost is smooth around it).
+    grid = np.linspace(-np.pi, np.pi, 73)
+    best = float(grid[int(np.argmin([cost(p) for p in grid]))])
+    lo, hi = best - 0.1, best + 0.1
+    ratio = (np.sqrt(5.0) - 1.0) / 2.0
+    for _ in range(40):
+        m1, m2 = hi - ratio * (hi - lo), lo + ratio * (hi - lo)
+        if cost(m1) < cost(m2):
+            hi = m2
+        else:
+            lo = m1
+    return turned(0.5 * (lo + hi))
+
+
 def summarize(q_est: ArrayLike, q_ref: ArrayLike, mask: ArrayLike | None = None) -> ErrorSummary:
     """Score ``q_est`` against ``q_ref`` (both ``(N, 4)``, same world frame) over ``mask`` (default all).
 
