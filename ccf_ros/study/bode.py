@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from ..core.ccf import CcfParams, tilt_transfer
 from ..core.registry import make_filter
 
 G = 9.80665
@@ -97,6 +98,13 @@ def cases(rate_hz: float) -> list[tuple[str, str, dict[str, Any], Any, float]]:
         out.append(('fig08_ccf', f'CCF Kp={kp:g} Ki={ki:g} alpha=0.7',
                     {'filter': 'ccf', 'formulation': 'euler', 'kp': kp, 'ki': ki, 'alpha': 0.7},
                     lambda f, kp=kp, ki=ki: tf_ccf(f, kp, ki, 0.7), _slowest(0.7 * kp, 0.7 * ki)))
+    p = CcfParams(use_mag=False, rest_bias=False)
+    kf, kn, ka = 1.0 / p.tau_acc_lp_s, 1.0 / p.tau_ncf_s, 1.0 / p.tau_acc_s
+    ki = 1.0 / (p.tau_ncf_s * p.tau_bias_s)
+    slowest = float(min(abs(r.real) for r in np.roots([1.0, kf + kn, kf * kn, ki * kf])))
+    out.append(('fig08_ccf', 'ccf_ros cascade (default, from the accelerometer angle)',
+                {'filter': 'ccf', 'rest_bias': False},
+                lambda f: np.array([tilt_transfer(p, float(x))[0] for x in np.atleast_1d(f)]), min(slowest, ka, kf)))
     return out
 
 

@@ -4,8 +4,8 @@ Both formulations are studied with the same gains:
 
 * **euler** — the paper's per-axis filters: NCF (eqs 10-11) and CCF (eqs 12-15) with ``(Kp, Ki, alpha)`` as given.
 * **quaternion** — the NCF's quaternion counterpart is Mahony's filter (a PI correction on the attitude error, gains
-  ``Kp`` 1/s and ``Ki`` 1/s²); the ccf_ros CCF takes the same gains through the per-axis equivalence of
-  :func:`quaternion_ccf_settings`.
+  ``Kp`` 1/s and ``Ki`` 1/s²); the ccf_ros CCF (an NCF -> LCF cascade on quaternions) takes the same gains through the
+  per-axis equivalence of :func:`quaternion_ccf_settings`.
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from ..core.ccf import CcfParams
 from ..core.metrics import error_angles
 from ..core.quaternion import quat_from_acc_mag, quat_from_rotvec, quat_mul, quat_to_euler, wrap_angle
 from ..core.registry import make_filter
@@ -33,17 +34,20 @@ def quaternion_ccf_settings(kp: float, ki: float, alpha: float) -> dict[str, Any
     """ccf_ros CCF settings equivalent to the paper's gains.
 
     Per axis the paper's CCF integrates ``rate + Kp (x_a - x) + I`` with ``x = alpha x_g + (1 - alpha) x_a``, so the
-    integrator sees the error ``alpha (x_a - x_g)``: correction rate ``alpha Kp`` (1/s) -> ``tau_acc_s = 1 / (alpha
-    Kp)``; bias gain ``alpha Ki`` (1/s²) -> ``tau_bias_s = 1 / sqrt(alpha Ki)``. Heading keeps the default ratio
-    ``tau_mag_s = 3 tau_acc_s``. The ccf_ros defaults (3 s, 9 s, 60 s) correspond to ``alpha Kp = 0.33``.
+    integrator sees the error ``alpha (x_a - x_g)``: proportional rate ``alpha Kp`` (1/s), integral gain ``alpha Ki``
+    (1/s²). The ccf_ros cascade's NCF has gains ``1/tau_ncf_s`` and ``1/(tau_ncf_s tau_bias_s)``, so
+    ``tau_ncf_s = 1/(alpha Kp)`` and ``tau_bias_s = Kp/Ki``; its LCF blends at the same rate (``tau_acc_s =
+    tau_acc_lp_s = tau_ncf_s``), heading three times slower (``tau_mag_s = 3 tau_acc_s``, the defaults' ratio).
     """
-    rate = max(alpha * kp, 1e-9)
+    tau = 1.0 / max(alpha * kp, 1e-9)
     return {
         'filter': 'ccf',
         'formulation': 'quaternion',
-        'tau_acc_s': 1.0 / rate,
-        'tau_mag_s': 3.0 / rate,
-        'tau_bias_s': 1.0 / math.sqrt(max(alpha * ki, 1e-12)),
+        'tau_ncf_s': tau,
+        'tau_bias_s': kp / max(ki, 1e-12),
+        'tau_acc_s': tau,
+        'tau_acc_lp_s': tau,
+        'tau_mag_s': 3.0 * tau,
     }
 
 
@@ -90,12 +94,15 @@ SENSITIVITY_FACTORS = (1 / 3, 1.0, 3.0)
 
 
 def default_sensitivity(ds: Dataset) -> dict[str, Any]:
-    """The ccf_ros CCF with its time constants scaled around the defaults: ``tau_acc_s``/``tau_mag_s`` (together)
-    and ``tau_bias_s`` each by 1/3, 1, 3. Keys ``f_acc/f_bias``."""
+    """The ccf_ros CCF with its time constants scaled around the defaults: the blends (``tau_acc_s``,
+    ``tau_acc_lp_s``, ``tau_mag_s`` together) and the NCF (``tau_ncf_s``, ``tau_bias_s`` together) each by 1/3, 1,
+    3. Keys ``f_blend/f_ncf``."""
+    d = CcfParams()
     out = {}
     for fa in SENSITIVITY_FACTORS:
         for fb in SENSITIVITY_FACTORS:
-            settings = {'filter': 'ccf', 'tau_acc_s': 3.0 * fa, 'tau_mag_s': 9.0 * fa, 'tau_bias_s': 60.0 * fb}
+            settings = {'filter': 'ccf', 'tau_acc_s': d.tau_acc_s * fa, 'tau_acc_lp_s': d.tau_acc_lp_s * fa,
+                        'tau_mag_s': d.tau_mag_s * fa, 'tau_ncf_s': d.tau_ncf_s * fb, 'tau_bias_s': d.tau_bias_s * fb}
             out[f'{fa:.3g}/{fb:.3g}'] = score(settings, ds)
     return out
 

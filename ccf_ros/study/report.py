@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from ..core.ccf import CcfParams
 from .experiments import ALPHA_GRID, FORMULATIONS, KI_GRID, KP_GRID, PAPER_ALPHA, SENSITIVITY_FACTORS
 
 #: Thresholds of the verdicts (stated in the report).
@@ -53,7 +54,7 @@ def sensitivity_table(results: dict[str, Any]) -> str:
             rows.append([f'{3 * fa:.3g} / {9 * fa:.3g}', f'{60 * fb:.3g}'] + [_cell(c) for c in cells]
                         + [f'{_mean([c["total_deg"] for c in cells]):.2f} / '
                            f'{_mean([c["mean_rmse_rad"] for c in cells]):.3f}'])
-    return _table(['tau_acc_s / tau_mag_s', 'tau_bias_s'] + [_short(n) for n in names] + ['mean'], rows)
+    return _table(['blends (tau_acc/lp/mag) x', 'NCF (tau_ncf/bias) x'] + [_short(n) for n in names] + ['mean'], rows)
 
 
 def lse_mean(results: dict[str, Any], form: str, metric: str = 'total_deg', key: str = 'score') -> float | None:
@@ -462,9 +463,11 @@ def markdown(results: dict[str, Any], command: str = '') -> str:
         '',
         'Cells are **BROAD total RMSE in degrees / the paper\'s mean RMSE (eq 17) in radians**, over the scored '
         '(moving) samples; a sample without an estimate counts as 180 deg. "euler" is the paper\'s per-axis form, '
-        '"quaternion" the ccf_ros default; the quaternion form\'s NCF is Mahony\'s filter, and the ccf_ros CCF takes '
-        'the paper\'s gains as tau_acc_s = 1/(alpha Kp), tau_mag_s = 3 tau_acc_s, tau_bias_s = 1/sqrt(alpha Ki) '
-        '(its defaults 3/9/60 s equal alpha Kp = 0.33).',
+        '"quaternion" the ccf_ros default: an NCF -> LCF cascade on unit quaternions (the NCF, a PI stage with its own '
+        'attitude, estimates the gyro bias; the LCF integrates the bias-corrected gyro and blends it with the '
+        'accelerometer, low-passed in the gyro-carried frame, and the magnetometer heading). The quaternion form\'s '
+        'NCF is Mahony\'s filter, and the ccf_ros CCF takes the paper\'s gains as tau_ncf_s = tau_acc_s = '
+        'tau_acc_lp_s = 1/(alpha Kp), tau_mag_s = 3 tau_acc_s, tau_bias_s = Kp/Ki.',
         '',
         '## Verdicts',
         '',
@@ -483,8 +486,12 @@ def markdown(results: dict[str, Any], command: str = '') -> str:
                   f'NCF ({NCF_LABEL[form]}):', '', grid_table(results, form, 'NCF'), '',
                   f'CCF ({CCF_LABEL[form]}):', '', grid_table(results, form, 'CCF'), '']
     if 'sensitivity' in results:
-        lines += ['## Table 2b: the ccf_ros CCF around its own defaults (3 s / 9 s / 60 s)', '',
-                  'Time constants scaled by 1/3, 1 and 3 (the paper-gain mapping above covers a far wider range).', '',
+        d = CcfParams()
+        lines += [f'## Table 2b: the ccf_ros CCF around its own defaults (blends tau_acc_s {d.tau_acc_s:g} s, '
+                  f'tau_acc_lp_s {d.tau_acc_lp_s:g} s, tau_mag_s {d.tau_mag_s:g} s; NCF tau_ncf_s {d.tau_ncf_s:g} s, '
+                  f'tau_bias_s {d.tau_bias_s:g} s)', '',
+                  'Each group of time constants scaled by 1/3, 1 and 3 (the paper-gain mapping above covers a far wider '
+                  'range).', '',
                   sensitivity_table(results), '']
     lines += ['## Table 3: LSE-fitted gains (in-sample, per dataset)', '', lscf_table(results), '',
               '## Figs 10-11: all methods (Table 4 parameters)', '', methods_table(results), '',
