@@ -307,3 +307,13 @@ def level_quat(ax: float, ay: float, az: float) -> Quat:
     """Body->ENU orientation of a specific force ``a`` (any norm > 0) with heading zero (body x towards east
     where possible): the first-sample initialisation without a usable magnetometer."""
     return relevel((1.0, 0.0, 0.0, 0.0), ax, ay, az)
+
+
+def rpy_of(q: Quat) -> tuple[float, float, float]:
+    """Roll, pitch, yaw (rad, intrinsic Z-Y-X as :func:`quat_to_euler`) of one ``(w, x, y, z)``, on plain floats."""
+    w, x, y, z = q
+    return (
+        math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y)),
+        math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x)))),
+        math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)),
+    )

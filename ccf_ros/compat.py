@@ -1,0 +1,121 @@
+"""Drop-in profiles for imu_tools users: the executables' node names, topics, parameter defaults and read-only flags.
+
+A user of ``imu_filter_madgwick`` or ``imu_complementary_filter`` (ROS 2 Jazzy) changes ``package=`` in the launch
+file to ``ccf_ros`` and keeps everything else: executable name, node name, topic names, the YAML (keyed by the node
+name), QoS overrides. Each executable runs the ccf filter; the anchors' parameter names are declared with the
+anchors' types, defaults and read-only flags, and every ccf parameter is accepted too. No ROS import here (the node
+reads these tables; tests check them without DDS).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from .settings import IMU_TOOLS_GAINS
+
+#: Parameters of imu_filter_madgwick (Jazzy) that are read-only there.
+_MADGWICK_READ_ONLY = frozenset({
+    'stateless', 'use_mag', 'publish_tf', 'reverse_tf', 'fixed_frame', 'constant_dt', 'remove_gravity_vector',
+    'publish_debug_topics', 'yaw_offset', 'declination', 'world_frame',
+})
+#: Parameters of imu_complementary_filter (Jazzy); all read-only there except orientation_stddev.
+_COMPLEMENTARY_READ_ONLY = frozenset({
+    'fixed_frame', 'use_mag', 'publish_tf', 'reverse_tf', 'constant_dt', 'publish_debug_topics', 'gain_acc',
+    'gain_mag', 'do_bias_estimation', 'bias_alpha', 'do_adaptive_gain',
+})
+#: ccf_node: the input QoS is fixed at start-up, and so are the publishers that TF and debug topics need.
+_CCF_READ_ONLY = frozenset({'qos_reliability', 'qos_depth', 'publish_tf', 'fixed_frame', 'reverse_tf',
+                            'publish_debug_topics'})
+
+
+@dataclass(frozen=True)
+class NodeProfile:
+    """How one executable presents itself.
+
+    Attributes:
+        executable: console script / ``lib/ccf_ros/`` executable name.
+        node_name: default node name (a launch file's ``name=`` overrides it, as usual).
+        imu_topic, mag_topic, out_topic: input and output topics (relative unless they start with ``/``).
+        rpy_filtered_topic, rpy_raw_topic: debug topics (roll, pitch, yaw of the output / of the accelerometer and
+            magnetometer alone), published with ``publish_debug_topics``; None: not published.
+        steady_state_topic: std_msgs/Bool "at rest" debug topic (complementary filter), or None.
+        defaults: parameter defaults that differ from :func:`ccf_ros.settings.all_defaults` for this executable.
+        read_only: parameters that cannot change after start-up.
+        qos_overrides: input subscriptions accept rclpy's standard ``qos_overrides.<topic>.subscription.*``.
+        bias_from_do_bias_estimation: ``do_bias_estimation`` also switches the bias-corrected ``angular_velocity``
+            (the complementary filter's behaviour).
+    """
+
+    executable: str
+    node_name: str
+    imu_topic: str = 'imu/data_raw'
+    mag_topic: str = 'imu/mag'
+    out_topic: str = 'imu/data'
+    rpy_filtered_topic: str | None = 'imu/rpy/filtered'
+    rpy_raw_topic: str | None = 'imu/rpy/raw'
+    steady_state_topic: str | None = None
+    defaults: Mapping[str, Any] = field(default_factory=dict)
+    read_only: frozenset[str] = _CCF_READ_ONLY
+    qos_overrides: bool = False
+    bias_from_do_bias_estimation: bool = False
+
+
+PROFILES: dict[str, NodeProfile] = {
+    'ccf_node': NodeProfile(executable='ccf_node', node_name='ccf_node', qos_overrides=True),
+    'imu_filter_madgwick_node': NodeProfile(
+        executable='imu_filter_madgwick_node',
+        node_name='imu_filter_madgwick',
+        defaults={'use_mag': True, 'publish_tf': True, 'fixed_frame': 'odom', 'world_frame': 'enu'},
+        read_only=_MADGWICK_READ_ONLY | {'qos_reliability', 'qos_depth'},
+    ),
+    'complementary_filter_node': NodeProfile(
+        executable='complementary_filter_node',
+        node_name='ComplementaryFilterROS',
+        # The complementary filter reads these absolute names (its QoS override keys are qos_overrides./imu/...).
+        imu_topic='/imu/data_raw',
+        mag_topic='/imu/mag',
+        rpy_raw_topic=None,
+        steady_state_topic='/imu/steady_state',
+        # Its world frame with a magnetometer is North-West-Up (x towards magnetic north); without, yaw is relative.
+        defaults={'use_mag': False, 'publish_tf': False, 'fixed_frame': 'odom', 'world_frame': 'nwu',
+                  'bias_corrected_rate': True, 'qos_reliability': 'reliable', 'qos_depth': 10},
+        read_only=_COMPLEMENTARY_READ_ONLY | {'qos_reliability', 'qos_depth', 'world_frame'},
+        qos_overrides=True,
+        bias_from_do_bias_estimation=True,
+    ),
+}
+
+
+def gain_notices(values: Mapping[str, Any]) -> list[str]:
+    """One line per imu_tools gain set to a non-default value: which ccf parameter plays that role instead."""
+    out = []
+    for name, (default, role) in IMU_TOOLS_GAINS.items():
+        if name in values and values[name] != default and not (
+            isinstance(default, float) and isinstance(values[name], (int, float)) and
+            math.isclose(float(values[name]), default)
+        ):
+            out.append(f'{name}={values[name]!r} has no meaning for the ccf filter (ignored); ccf uses {role}')
+    return out
+
+
+def apply_do_bias_estimation(values: dict[str, Any], profile: NodeProfile) -> None:
+    """imu_tools' ``do_bias_estimation: false`` switches bias learning off (and, for the complementary filter, the
+    bias-corrected rate). Edits ``values`` in place."""
+    if values.get('do_bias_estimation', True) is False:
+        values['rest_bias'] = False
+        values['motion_bias'] = False
+        if profile.bias_from_do_bias_estimation:
+            values['bias_corrected_rate'] = False
+
+
+def tf_transform(q_xyzw: tuple[float, float, float, float], imu_frame: str, fixed_frame: str, reverse: bool
+                 ) -> tuple[str, str, tuple[float, float, float, float]]:
+    """``(parent, child, rotation x, y, z, w)`` of the orientation as a transform: ``fixed_frame -> imu_frame``, or
+    with ``reverse`` its inverse ``imu_frame -> fixed_frame`` (the conjugate, as imu_filter_madgwick does)."""
+    if reverse:
+        x, y, z, w = q_xyzw
+        return imu_frame, fixed_frame, (-x, -y, -z, w)
+    return fixed_frame, imu_frame, q_xyzw
