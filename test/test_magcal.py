@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from ccf_ros.core.quaternion import quat_conj, quat_from_rotvec, quat_mul, quat_rotate
+from ccf_ros.errors import BagError, CcfError, ParameterError
 from ccf_ros.offline import magcal
-from ccf_ros.offline.bagio import BagError
 from ccf_ros.offline.magcal import CalibrationError, MagCalibration, add_parser, coverage, fit, params_yaml, read_mag
 from ccf_ros.offline.params_file import load_params_file
 from ccf_ros.offline.simulate import MAG_WORLD, SimData, generate, write_bag
@@ -203,7 +203,8 @@ def test_unusable_data_raises_one_line_calibration_error(make, match):
     with pytest.raises(CalibrationError, match=match) as info:
         fit(make())
     assert '\n' not in str(info.value)
-    assert isinstance(info.value, ValueError)  # the ccf CLI reports ValueError as one line, exit 2
+    assert isinstance(info.value, CcfError)  # the ccf CLI shows it as one line, exit 2
+    assert isinstance(info.value, ValueError)  # and for callers of fit(), an unusable value
 
 
 def test_fit_rejects_bad_arguments():
@@ -274,7 +275,7 @@ def test_calibrate_mag_refuses_to_overwrite(distorted_bag, tmp_path, capsys):
     out = tmp_path / 'mag_calibration.yaml'
     out.write_text('keep me\n')
     args = cli([str(path), '-o', str(out)])
-    with pytest.raises(CalibrationError, match='exists; pass --overwrite'):
+    with pytest.raises(CcfError, match='exists; pass --overwrite'):
         args.func(args)
     assert out.read_text() == 'keep me\n'
     args = cli([str(path), '-o', str(out), '--overwrite'])
@@ -299,5 +300,5 @@ def test_calibrate_mag_help_shows_defaults_and_bad_field_norm_is_refused(distort
     text = ' '.join(add_parser(sub).format_help().split())
     assert '(default: /imu/mag)' in text and '(default: mag_calibration.yaml)' in text
     args = cli([str(distorted_bag[0]), '-o', str(tmp_path / 'x.yaml'), '--field-norm-ut', '-50'])
-    with pytest.raises(CalibrationError, match='--field-norm-ut'):
+    with pytest.raises(ParameterError, match='--field-norm-ut'):
         args.func(args)

@@ -1,9 +1,16 @@
-"""Reading ROS bags (rosbag2 mcap/sqlite3 and ROS 1 .bag) through rosbags, with one error type for users."""
+"""Reading and writing ROS bags (rosbag2 mcap/sqlite3 and ROS 1 .bag) through rosbags, with one error type for users.
+
+The ``try`` blocks here hold the rosbags calls only: what rosbags raises on a missing, unreadable or truncated bag
+becomes a :class:`BagError` (chained ``from`` the original); an exception raised by the caller's code between
+messages passes unchanged (a bug shows its traceback).
+"""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from contextlib import contextmanager
+import shutil
+import sqlite3
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -14,8 +21,12 @@ from ..core.pairing import MagPairer
 from ..core.quaternion import from_xyzw
 from ..errors import BagError
 
-__all__ = ['BagError', 'ImuArrays', 'connections_for', 'open_bag', 'read_bools', 'read_imu_arrays', 'read_orientations',
-           'stamp_s', 'typestore']
+__all__ = ['BagError', 'BagWriter', 'ImuArrays', 'connections_for', 'deserialize', 'open_bag', 'open_writer',
+           'read_bools', 'read_imu_arrays', 'read_messages', 'read_orientations', 'staged', 'stamp_s', 'typestore',
+           'unreadable']
+
+#: Storage plugins by the names ``--storage`` takes.
+STORAGES = ('mcap', 'sqlite3')
 
 
 def typestore() -> Any:
@@ -23,6 +34,11 @@ def typestore() -> Any:
     from rosbags.typesys import Stores, get_typestore
 
     return get_typestore(Stores.ROS2_JAZZY)
+
+
+def unreadable(path: str | Path, err: BaseException) -> BagError:
+    """The one error for a bag whose messages cannot be read (raise it ``from err``)."""
+    return BagError(f'{path}: bag is unreadable or truncated: {type(err).__name__}: {err}')
 
 
 @contextmanager
@@ -38,14 +54,128 @@ def open_bag(path: str | Path) -> Iterator[Any]:
     try:
         reader = AnyReader([p], default_typestore=typestore())
         reader.open()
-    except BagError:
-        raise
     except Exception as err:  # rosbags raises several types; the user needs one line
-        raise BagError(f'{p}: cannot open bag: {err}') from None
+        raise BagError(f'{p}: cannot open bag: {type(err).__name__}: {err}') from err
     try:
         yield reader
     finally:
         reader.close()
+
+
+def read_messages(reader: Any, path: str | Path, connections: Iterable[Any] | None = None) -> Iterator[Any]:
+    """``(connection, t_rec_ns, raw)`` of ``reader.messages(connections)``; a read failure is a :class:`BagError`.
+
+    Only the reading is guarded: what the caller does with a message (between two ``next``) is not.
+    """
+    try:
+        it = reader.messages(connections=list(connections) if connections is not None else ())
+    except Exception as err:
+        raise unreadable(path, err) from err
+    while True:
+        try:
+            item = next(it)
+        except StopIteration:
+            return
+        except Exception as err:  # rosbags (mcap, sqlite3, ROS 1 readers) raises several types
+            raise unreadable(path, err) from err
+        yield item
+
+
+def deserialize(reader: Any, raw: bytes | memoryview, msgtype: str, path: str | Path) -> Any:
+    """``reader.deserialize(raw, msgtype)``; a message that does not decode is a :class:`BagError`."""
+    try:
+        return reader.deserialize(raw, msgtype)
+    except Exception as err:
+        raise unreadable(path, err) from err
+
+
+#: What rosbags' writers raise when the file system refuses (full disk, permissions); anything else is a bug.
+_WRITE_ERRORS = (OSError, sqlite3.Error)
+
+
+class BagWriter:
+    """A rosbags rosbag2 ``Writer`` whose file-system failures are :class:`BagError` (see :func:`open_writer`)."""
+
+    def __init__(self, writer: Any, path: Path) -> None:
+        self.writer = writer
+        self.path = path
+
+    def add_connection(self, topic: str, msgtype: str, **kwargs: Any) -> Any:
+        try:
+            return self.writer.add_connection(topic, msgtype, **kwargs)
+        except _WRITE_ERRORS as err:
+            raise self._error(err) from err
+
+    def write(self, connection: Any, t_ns: int, data: bytes | memoryview) -> None:
+        try:
+            self.writer.write(connection, t_ns, data)
+        except _WRITE_ERRORS as err:
+            raise self._error(err) from err
+
+    def _error(self, err: BaseException) -> BagError:
+        return BagError(f'{self.path}: cannot write bag: {type(err).__name__}: {err}')
+
+
+def _remove(path: Path) -> None:
+    shutil.rmtree(path) if path.is_dir() and not path.is_symlink() else path.unlink()
+
+
+@contextmanager
+def staged(path: str | Path) -> Iterator[Path]:
+    """Where to write a new bag that becomes ``path`` only when complete: an error or Ctrl-C leaves no half bag.
+
+    Yields ``.NAME.partial/NAME`` next to ``path`` (the storage file is named after the bag, ``NAME.mcap``); when
+    the ``with`` body succeeds it replaces ``path`` (if that exists), otherwise the staging directory is removed.
+    """
+    path = Path(path)
+    stage = path.with_name(f'.{path.name}.partial')
+    try:
+        if stage.exists() or stage.is_symlink():
+            _remove(stage)  # left over from a killed run
+        stage.mkdir()
+    except OSError as err:
+        raise BagError(f'cannot create {stage}: {err.strerror}') from err
+    try:
+        yield stage / path.name
+        if path.exists() or path.is_symlink():
+            _remove(path)
+        (stage / path.name).rename(path)
+    except BaseException:
+        shutil.rmtree(stage, ignore_errors=True)
+        raise
+    stage.rmdir()
+
+
+@contextmanager
+def open_writer(path: str | Path, storage: str = 'mcap') -> Iterator[BagWriter]:
+    """A new rosbag2 (version 9) at ``path`` in ``storage`` (``mcap`` or ``sqlite3``), closed on exit.
+
+    On an exception in the ``with`` body the writer is aborted and the exception passes unchanged; the caller removes
+    the half-written directory. Raises :class:`BagError` if the bag cannot be created, written or closed.
+    """
+    from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
+
+    plugins = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
+    if storage not in plugins:
+        raise BagError(f'unknown storage {storage!r} ({" or ".join(STORAGES)})')
+    path = Path(path)
+    try:
+        writer = Writer(path, version=9, storage_plugin=plugins[storage])
+        writer.open()
+    except (WriterError, *_WRITE_ERRORS) as err:
+        raise BagError(f'{path}: cannot create bag: {type(err).__name__}: {err}') from err
+    try:
+        yield BagWriter(writer, path)
+    except BaseException:
+        with suppress(Exception):
+            writer.abort()
+        raise
+    try:
+        writer.close()
+    except _WRITE_ERRORS as err:
+        with suppress(Exception):
+            writer.abort()
+        raise BagError(f'{path}: cannot write bag: {type(err).__name__}: {err}') from err
 
 
 def stamp_s(header: Any) -> float:
@@ -90,25 +220,20 @@ def read_imu_arrays(
         conns = connections_for(reader, imu_topic)
         if mag_topic:
             conns += connections_for(reader, mag_topic, required=False)
-        try:
-            for conn, _, raw in reader.messages(connections=conns):
-                msg = reader.deserialize(raw, conn.msgtype)
-                if conn.topic == imu_topic:
-                    ts = stamp_s(msg.header)
-                    t.append(ts)
-                    v = msg.angular_velocity
-                    g.append((v.x, v.y, v.z))
-                    v = msg.linear_acceleration
-                    a.append((v.x, v.y, v.z))
-                    mm = pairer.get(ts)
-                    m.append(mm if mm is not None else nan3)
-                else:
-                    f = msg.magnetic_field
-                    pairer.add(stamp_s(msg.header), (f.x, f.y, f.z))
-        except BagError:
-            raise
-        except Exception as err:
-            raise BagError(f'{path}: bag is unreadable or truncated: {err}') from None
+        for conn, _, raw in read_messages(reader, path, conns):
+            msg = deserialize(reader, raw, conn.msgtype, path)
+            if conn.topic == imu_topic:
+                ts = stamp_s(msg.header)
+                t.append(ts)
+                v = msg.angular_velocity
+                g.append((v.x, v.y, v.z))
+                v = msg.linear_acceleration
+                a.append((v.x, v.y, v.z))
+                mm = pairer.get(ts)
+                m.append(mm if mm is not None else nan3)
+            else:
+                f = msg.magnetic_field
+                pairer.add(stamp_s(msg.header), (f.x, f.y, f.z))
     return ImuArrays(
         t_s=np.array(t, dtype=float),
         gyr=np.array(g, dtype=float).reshape(-1, 3),
@@ -137,15 +262,10 @@ def read_orientations(path: str | Path, topic: str) -> tuple[np.ndarray, np.ndar
     t, q = [], []
     with open_bag(path) as reader:
         conns = connections_for(reader, topic)
-        try:
-            for conn, _, raw in reader.messages(connections=conns):
-                msg = reader.deserialize(raw, conn.msgtype)
-                q.append(orientation_of(msg, conn.msgtype))
-                t.append(stamp_s(msg.header))
-        except BagError:
-            raise
-        except Exception as err:
-            raise BagError(f'{path}: bag is unreadable or truncated: {err}') from None
+        for conn, _, raw in read_messages(reader, path, conns):
+            msg = deserialize(reader, raw, conn.msgtype, path)
+            q.append(orientation_of(msg, conn.msgtype))
+            t.append(stamp_s(msg.header))
     return np.array(t, dtype=float), np.array(q, dtype=float).reshape(-1, 4)
 
 
@@ -154,7 +274,7 @@ def read_bools(path: str | Path, topic: str) -> tuple[np.ndarray, np.ndarray]:
     t, v = [], []
     with open_bag(path) as reader:
         conns = connections_for(reader, topic)
-        for conn, ts, raw in reader.messages(connections=conns):
+        for conn, ts, raw in read_messages(reader, path, conns):
             t.append(ts * 1e-9)
-            v.append(bool(reader.deserialize(raw, conn.msgtype).data))
+            v.append(bool(deserialize(reader, raw, conn.msgtype, path).data))
     return np.array(t, dtype=float), np.array(v, dtype=bool)

@@ -9,6 +9,7 @@ import numpy as np
 from ..core import make_filter, run_batch
 from ..core.metrics import summarize
 from ..engine import ImuEngine
+from ..errors import CcfError
 from .evaluate import evaluate, load_aligned
 from .plot import plot_rpy
 from .replay import replay
@@ -20,7 +21,10 @@ def run_demo(out_dir: Path, duration_s: float = 60.0, seed: int = 1, live: bool 
 
     With ``live`` the simulation is also played through a live ``ccf_node`` over loopback DDS.
     """
-    out_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise CcfError(f'cannot create {out_dir}: {err.strerror}') from err
     sim_bag = out_dir / 'sim'
     out_bag = out_dir / 'filtered'
     data = generate(duration_s, 286.0, seed)

@@ -9,7 +9,8 @@ import numpy as np
 
 from ..core.metrics import ErrorSummary, summarize
 from ..core.quaternion import quat_slerp
-from .bagio import BagError, read_bools, read_orientations
+from ..errors import BagError
+from .bagio import read_bools, read_orientations
 
 
 @dataclass

@@ -31,7 +31,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .bagio import BagError, connections_for, open_bag
+from ..errors import BagError, CcfError, ParameterError
+from .bagio import connections_for, deserialize, open_bag, read_messages
 
 #: Fewest usable samples :func:`fit` accepts.
 MIN_SAMPLES = 50
@@ -52,8 +53,12 @@ MAX_AXIS_RATIO = 3.0
 _HINT = 'rotate the sensor through more orientations, away from magnetic disturbances'
 
 
-class CalibrationError(ValueError):
-    """The samples cannot give a calibration; the message is meant for the user, one line."""
+class CalibrationError(CcfError, ValueError):
+    """The samples cannot give a calibration; the message is meant for the user, one line.
+
+    A :class:`~ccf_ros.errors.CcfError` (the ``ccf`` command shows it as one line, exit code 2) and, for callers of
+    :func:`fit`, a ``ValueError`` (the samples are an unusable value).
+    """
 
 
 @dataclass(frozen=True)
@@ -293,12 +298,9 @@ def read_mag(bag: str | Path, topic: str = '/imu/mag') -> np.ndarray:
         for c in conns:
             if not c.msgtype.endswith('/MagneticField'):
                 raise BagError(f'topic {topic} is {c.msgtype}, expected sensor_msgs/msg/MagneticField')
-        try:
-            for conn, _, raw in reader.messages(connections=conns):
-                f = reader.deserialize(raw, conn.msgtype).magnetic_field
-                out.append((f.x, f.y, f.z))
-        except Exception as err:  # rosbags raises several types; the user needs one line
-            raise BagError(f'{bag}: bag is unreadable or truncated: {err}') from None
+        for conn, _, raw in read_messages(reader, bag, conns):
+            f = deserialize(reader, raw, conn.msgtype, bag).magnetic_field
+            out.append((f.x, f.y, f.z))
     return np.array(out, dtype=float).reshape(-1, 3)
 
 
@@ -353,8 +355,12 @@ def plot(path: str | Path, raw: ArrayLike, cal: MagCalibration) -> None:
     fig.suptitle(f'magnetometer calibration: residual {cal.residual_rel:.2%} RMS, coverage {cal.coverage:.0%}, '
                  f'{cal.n_samples} samples')
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    try:
+        fig.savefig(path, dpi=90)
+    except OSError as err:
+        raise CcfError(f'cannot write {path}: {err.strerror or err}') from err
+    finally:
+        plt.close(fig)
 
 
 def cmd_calibrate_mag(args: argparse.Namespace) -> int:
@@ -362,9 +368,9 @@ def cmd_calibrate_mag(args: argparse.Namespace) -> int:
     out = Path(args.output)
     # Refuse before the slow part, not after.
     if out.exists() and not args.overwrite:
-        raise CalibrationError(f'{out} exists; pass --overwrite to replace it')
+        raise CcfError(f'{out} exists; pass --overwrite to replace it')
     if args.field_norm_ut is not None and not (math.isfinite(args.field_norm_ut) and args.field_norm_ut > 0):
-        raise CalibrationError(f'--field-norm-ut must be a positive number of uT, got {args.field_norm_ut!r}')
+        raise ParameterError(f'--field-norm-ut must be a positive number of uT, got {args.field_norm_ut!r}')
     raw = read_mag(args.bag, args.mag_topic)
     field_norm_t = None if args.field_norm_ut is None else args.field_norm_ut * 1e-6
     cal = fit(raw, field_norm_t=field_norm_t)
@@ -389,7 +395,7 @@ def cmd_calibrate_mag(args: argparse.Namespace) -> int:
         os.replace(tmp, out)
     except OSError as err:
         tmp.unlink(missing_ok=True)
-        raise CalibrationError(f'cannot write {out}: {err.strerror}') from None
+        raise CcfError(f'cannot write {out}: {err.strerror}') from err
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise

@@ -12,7 +12,8 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from .bagio import BagError, open_bag
+from ..errors import BagError, ParameterError
+from .bagio import open_bag, read_messages, unreadable
 
 
 def msg_class(msgtype: str) -> Any:
@@ -20,8 +21,8 @@ def msg_class(msgtype: str) -> Any:
     pkg, _, name = msgtype.split('/')
     try:
         return getattr(importlib.import_module(f'{pkg}.msg'), name)
-    except (ImportError, AttributeError):
-        raise BagError(f'message type {msgtype} is not available in this ROS installation') from None
+    except (ImportError, AttributeError) as err:
+        raise BagError(f'message type {msgtype} is not available in this ROS installation') from err
 
 
 def load_messages(bag: str | Path, topics: Sequence[str] | None = None) -> tuple[dict[str, str], list[tuple[int, str, bytes]]]:
@@ -32,13 +33,14 @@ def load_messages(bag: str | Path, topics: Sequence[str] | None = None) -> tuple
             raise BagError(f'topics not in bag: {", ".join(sorted(missing))}')
         types = {c.topic: c.msgtype for c in conns}
         ros1 = not reader.is2
-        try:
-            msgs = [
-                (t, c.topic, bytes(reader.typestore.ros1_to_cdr(raw, c.msgtype) if ros1 else raw))
-                for c, t, raw in reader.messages(connections=conns)
-            ]
-        except Exception as err:
-            raise BagError(f'{bag}: bag is unreadable or truncated: {err}') from None
+        msgs = []
+        for c, t, raw in read_messages(reader, bag, conns):
+            if ros1:
+                try:
+                    raw = reader.typestore.ros1_to_cdr(raw, c.msgtype)
+                except Exception as err:  # rosbags' conversion of a message that does not decode
+                    raise unreadable(bag, err) from err
+            msgs.append((t, c.topic, bytes(raw)))
     return types, msgs
 
 
@@ -64,7 +66,7 @@ def play(
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
     if not rate > 0:
-        raise ValueError(f'--rate must be > 0, got {rate!r}')
+        raise ParameterError(f'--rate must be > 0, got {rate!r}')
     qos = QoSProfile(depth=qos_depth, reliability=ReliabilityPolicy.RELIABLE)
     pubs = {topic: node.create_publisher(msg_class(t), topic, qos) for topic, t in types.items()}
     clock_pub = None

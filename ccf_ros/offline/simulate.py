@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
-import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..core.quaternion import quat_conj, quat_from_rotvec, quat_mul, quat_rotate, to_xyzw
-from .bagio import BagError, typestore
+from ..errors import BagError, ParameterError
+from .bagio import open_writer, staged, typestore
 
 G = 9.80665
 #: Earth field in ENU (tesla): 50 µT, dip 60° (roughly central Europe).
@@ -64,7 +64,7 @@ def generate(
     ``bias_drift_rad_s`` > 0) drifts as a sinusoid of that amplitude and ``bias_drift_period_s`` (thermal drift).
     """
     if not (duration_s > 0 and rate_hz > 0):
-        raise ValueError(f'duration and rate must be > 0, got {duration_s!r}, {rate_hz!r}')
+        raise ParameterError(f'duration and rate must be > 0, got {duration_s!r} s, {rate_hz!r} Hz')
     rng = np.random.default_rng(seed)
     n = int(round(duration_s * rate_hz))
     tr = np.arange(n) / rate_hz
@@ -116,14 +116,14 @@ def generate(
 
 
 def write_bag(data: SimData, path: str | Path, *, overwrite: bool = False, storage: str = 'mcap') -> None:
-    """Write ``data`` as a rosbag2 with /imu/mag, /imu/data_raw, /ground_truth/pose, /ground_truth/moving."""
-    from rosbags.rosbag2 import StoragePlugin, Writer
+    """Write ``data`` as a rosbag2 with /imu/mag, /imu/data_raw, /ground_truth/pose, /ground_truth/moving.
 
+    Written to a temporary sibling and renamed at the end. Raises :class:`BagError` if ``path`` exists (without
+    ``overwrite``) or cannot be written.
+    """
     path = Path(path)
-    if path.exists():
-        if not overwrite:
-            raise BagError(f'{path} exists; pass --overwrite to replace it')
-        shutil.rmtree(path) if path.is_dir() else path.unlink()
+    if path.exists() and not overwrite:
+        raise BagError(f'{path} exists; pass --overwrite to replace it')
     ts = typestore()
     T = ts.types
     Header, Time = T['std_msgs/msg/Header'], T['builtin_interfaces/msg/Time']
@@ -134,38 +134,29 @@ def write_bag(data: SimData, path: str | Path, *, overwrite: bool = False, stora
     ser = ts.serialize_cdr
     cov0 = np.zeros(9)
     cov_unknown = np.array([-1.0] + [0.0] * 8)
-    plugin = StoragePlugin.MCAP if storage == 'mcap' else StoragePlugin.SQLITE3
-    tmp = path.with_name(f'.{path.name}.partial')
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    try:
-        with Writer(tmp, version=9, storage_plugin=plugin) as w:
-            c_mag = w.add_connection('/imu/mag', MagneticField.__msgtype__, typestore=ts)
-            c_imu = w.add_connection('/imu/data_raw', Imu.__msgtype__, typestore=ts)
-            c_gt = w.add_connection('/ground_truth/pose', PoseStamped.__msgtype__, typestore=ts)
-            c_mv = w.add_connection('/ground_truth/moving', Bool.__msgtype__, typestore=ts)
-            ns = np.round(data.t_s * 1e9).astype(np.int64).tolist()
-            gyr, acc, mag, qt = data.gyr.tolist(), data.acc.tolist(), data.mag.tolist(), data.q_true.tolist()
-            moving = data.moving.tolist()
-            for k, t_ns in enumerate(ns):
-                hdr = Header(stamp=Time(sec=t_ns // 1_000_000_000, nanosec=t_ns % 1_000_000_000), frame_id='imu_link')
-                m = mag[k]
-                w.write(c_mag, t_ns, ser(MagneticField(header=hdr, magnetic_field=Vector3(x=m[0], y=m[1], z=m[2]),
-                                                       magnetic_field_covariance=cov0), MagneticField.__msgtype__))
-                g, a = gyr[k], acc[k]
-                w.write(c_imu, t_ns, ser(Imu(header=hdr, orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0),
-                                             orientation_covariance=cov_unknown,
-                                             angular_velocity=Vector3(x=g[0], y=g[1], z=g[2]),
-                                             angular_velocity_covariance=cov0,
-                                             linear_acceleration=Vector3(x=a[0], y=a[1], z=a[2]),
-                                             linear_acceleration_covariance=cov0), Imu.__msgtype__))
-                x, y, z, ww = to_xyzw(tuple(qt[k]))
-                gt_hdr = Header(stamp=hdr.stamp, frame_id='world')
-                w.write(c_gt, t_ns, ser(PoseStamped(header=gt_hdr, pose=Pose(position=Point(x=0.0, y=0.0, z=0.0),
-                                                                            orientation=Quaternion(x=x, y=y, z=z, w=ww))),
-                                        PoseStamped.__msgtype__))
-                w.write(c_mv, t_ns, ser(Bool(data=moving[k]), Bool.__msgtype__))
-        tmp.rename(path)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+    with staged(path) as tmp, open_writer(tmp, storage) as w:
+        c_mag = w.add_connection('/imu/mag', MagneticField.__msgtype__, typestore=ts)
+        c_imu = w.add_connection('/imu/data_raw', Imu.__msgtype__, typestore=ts)
+        c_gt = w.add_connection('/ground_truth/pose', PoseStamped.__msgtype__, typestore=ts)
+        c_mv = w.add_connection('/ground_truth/moving', Bool.__msgtype__, typestore=ts)
+        ns = np.round(data.t_s * 1e9).astype(np.int64).tolist()
+        gyr, acc, mag, qt = data.gyr.tolist(), data.acc.tolist(), data.mag.tolist(), data.q_true.tolist()
+        moving = data.moving.tolist()
+        for k, t_ns in enumerate(ns):
+            hdr = Header(stamp=Time(sec=t_ns // 1_000_000_000, nanosec=t_ns % 1_000_000_000), frame_id='imu_link')
+            m = mag[k]
+            w.write(c_mag, t_ns, ser(MagneticField(header=hdr, magnetic_field=Vector3(x=m[0], y=m[1], z=m[2]),
+                                                   magnetic_field_covariance=cov0), MagneticField.__msgtype__))
+            g, a = gyr[k], acc[k]
+            w.write(c_imu, t_ns, ser(Imu(header=hdr, orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0),
+                                         orientation_covariance=cov_unknown,
+                                         angular_velocity=Vector3(x=g[0], y=g[1], z=g[2]),
+                                         angular_velocity_covariance=cov0,
+                                         linear_acceleration=Vector3(x=a[0], y=a[1], z=a[2]),
+                                         linear_acceleration_covariance=cov0), Imu.__msgtype__))
+            x, y, z, ww = to_xyzw(tuple(qt[k]))
+            gt_hdr = Header(stamp=hdr.stamp, frame_id='world')
+            w.write(c_gt, t_ns, ser(PoseStamped(header=gt_hdr, pose=Pose(position=Point(x=0.0, y=0.0, z=0.0),
+                                                                        orientation=Quaternion(x=x, y=y, z=z, w=ww))),
+                                    PoseStamped.__msgtype__))
+            w.write(c_mv, t_ns, ser(Bool(data=moving[k]), Bool.__msgtype__))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import math
 import os
 import signal
@@ -13,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ..offline.bagio import BagError
+from ..errors import CcfError, ParameterError
 from ..offline.simulate import generate
 from . import experiments as ex
 from . import lscf
@@ -47,11 +48,17 @@ class StudyOptions:
 
     def __post_init__(self) -> None:
         if not self.long_run_s >= 0:
-            raise ValueError(f'long_run_s must be >= 0, got {self.long_run_s!r}')
+            raise ParameterError(f'long_run_s must be >= 0, got {self.long_run_s!r}')
         if not self.long_run_rate_hz > 0:
-            raise ValueError(f'long_run_rate_hz must be > 0, got {self.long_run_rate_hz!r}')
+            raise ParameterError(f'long_run_rate_hz must be > 0, got {self.long_run_rate_hz!r}')
         if self.repetitions < 1:
-            raise ValueError(f'repetitions must be >= 1, got {self.repetitions!r}')
+            raise ParameterError(f'repetitions must be >= 1, got {self.repetitions!r}')
+        if self.jobs < 0:
+            raise ParameterError(f'jobs must be >= 0 (0: one per CPU), got {self.jobs!r}')
+        if self.lscf_iterations < 1:
+            raise ParameterError(f'lscf_iterations must be >= 1, got {self.lscf_iterations!r}')
+        if self.bode_frequencies < 1:
+            raise ParameterError(f'bode_frequencies must be >= 1, got {self.bode_frequencies!r}')
 
 
 #: Gyro bias of the long run (a consumer MEMS gyro): initial N(0, 0.5°/s) per axis, thermal drift of ±0.3°/s over
@@ -109,9 +116,10 @@ def _run_pool(
                 for fut in done:
                     try:
                         results[futures[fut]] = fut.result()
-                    except (BagError, ValueError):
-                        raise  # the user's input: its message says what is wrong
+                    except CcfError:
+                        raise  # the user's input (a bag, a parameter): its message says what is wrong
                     except Exception as err:
+                        # A bug: the worker's traceback is chained (concurrent.futures' _RemoteTraceback).
                         raise RuntimeError(f'study task {futures[fut]} failed: {type(err).__name__}: {err}') from err
                     bar.set_postfix_str(futures[fut][:40])
                     bar.update()
@@ -142,7 +150,10 @@ def run_study(
     t_start = time.time()
     jobs = opts.jobs or os.cpu_count() or 1
     if not bags:
-        raise ValueError('no bags given')
+        raise CcfError('no bags given')
+    if opts.lscf and importlib.util.find_spec('scipy') is None:
+        # Before the slow part, not after: the fit needs scipy, the rest of the study does not.
+        raise CcfError('the LSCF fit needs scipy: pip install "ccf_ros[study]", or pass --no-lscf')
     loaded = _run_pool(jobs, [(str(b), _task_load, (str(b), topics)) for b in bags], 'loading bags', progress)
     datasets = [loaded[str(b)] for b in bags]
     names = [d.name for d in datasets]
