@@ -1,40 +1,86 @@
 """``ccf``: offline tools on recorded bags, no ROS install needed.
 
-Subcommands: replay, eval, simulate, play, demo. Errors are one line on stderr and exit code 2; Ctrl-C exits 130.
+Subcommands: replay, eval, simulate, play, demo, study, calibrate-mag.
+
+A problem with the input (a bag, a parameter, an option, an output that exists) is one line on stderr and exit
+code 2; Ctrl-C exits 130. Anything else is a bug in ccf_ros: it shows its traceback (exit code 1). ``--debug``
+shows the traceback of input errors too.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
+import shlex
 import sys
 import tempfile
+import traceback
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from .offline.bagio import BagError
+from .errors import BagError, CcfError, ParameterError
 
 
-def _settings(args: argparse.Namespace) -> dict[str, Any]:
-    from .offline.params_file import load_params_file, parse_assignments
+class HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """Descriptions as written; ``(default: X)`` after the help of every option that has a default.
 
-    settings: dict[str, Any] = {}
-    if getattr(args, 'params_file', None):
-        settings.update(load_params_file(args.params_file))
-    settings.update(parse_assignments(getattr(args, 'param', None) or []))
+    Flags (``store_true``) and options without a default (None) get none: their help says what absence means.
+    """
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ''
+        if (
+            action.option_strings
+            and action.nargs != 0
+            and action.default is not None
+            and action.default is not argparse.SUPPRESS
+            and '%(default)' not in text
+        ):
+            text += ' (default: %(default)s)'
+        return text
+
+
+def _settings(args: argparse.Namespace) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Settings from the parameters files (in order, a later file overriding an earlier one) and from the command
+    line (``--param``, ``--no-mag``), which overrides the files."""
+    from .offline.params_file import load_params_files, parse_assignments
+
+    from_files = load_params_files(getattr(args, 'params_file', None) or [])
+    given: dict[str, Any] = dict(parse_assignments(getattr(args, 'param', None) or []))
     if getattr(args, 'no_mag', False):
-        settings['use_mag'] = False
-    return settings
+        given['use_mag'] = False
+    return from_files, given
 
 
 def _engine(args: argparse.Namespace) -> Any:
+    from .core.registry import SELECTORS
     from .engine import ImuEngine
     from .settings import build
 
-    settings = _settings(args)
-    # A parameters file holds every parameter; only names given on the command line must apply.
-    filt, adapter = build(settings, strict=not getattr(args, 'params_file', None))
+    from_files, given = _settings(args)
+    merged = {**from_files, **given}
+    if from_files:
+        # A parameters file holds the parameters of every filter; only the names given on the command line must
+        # apply to the selected one.
+        selected = {name: merged[name] for name in SELECTORS if name in merged}
+        build({**selected, **given}, strict=True)
+    filt, adapter = build(merged, strict=not from_files)
     return ImuEngine(filt, adapter)
+
+
+def _writable(path: str | Path, what: str) -> Path:
+    """``path`` if its directory exists (checked before the slow part); :class:`CcfError` otherwise."""
+    p = Path(path)
+    if not p.parent.is_dir():
+        raise CcfError(f'cannot write {what} {p}: no such directory {p.parent}')
+    return p
+
+
+def _need_rclpy(what: str) -> None:
+    if importlib.util.find_spec('rclpy') is None:
+        raise CcfError(f'{what} needs rclpy: install the ROS 2 Jazzy wheels (pip install -e .) or source ROS 2 Jazzy')
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
@@ -58,6 +104,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
 def cmd_eval(args: argparse.Namespace) -> int:
     from .offline.evaluate import evaluate, format_summary, load_aligned
 
+    json_path = _writable(args.json, 'JSON') if args.json else None
+    plot_path = _writable(args.plot, 'plot') if args.plot else None
     aligned = load_aligned(
         args.bag,
         args.reference,
@@ -67,13 +115,17 @@ def cmd_eval(args: argparse.Namespace) -> int:
     )
     s = evaluate(aligned)
     print(format_summary(s, args.estimate_topic))
-    if args.json:
-        Path(args.json).write_text(json.dumps(s.as_dict(), indent=2))
-    if args.plot:
+    if json_path:
+        text = json.dumps(s.as_dict(), indent=2)
+        try:
+            json_path.write_text(text)
+        except OSError as err:
+            raise CcfError(f'cannot write JSON {json_path}: {err.strerror}') from err
+    if plot_path:
         from .offline.plot import plot_rpy
 
-        plot_rpy(args.plot, aligned.t_s, aligned.q_ref, {args.estimate_topic: aligned.q_est}, title=str(args.bag))
-        print(f'plot: {args.plot}')
+        plot_rpy(plot_path, aligned.t_s, aligned.q_ref, {args.estimate_topic: aligned.q_est}, title=str(args.bag))
+        print(f'plot: {plot_path}')
     return 0
 
 
@@ -87,6 +139,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def cmd_play(args: argparse.Namespace) -> int:
+    if not args.rate > 0:
+        raise ParameterError(f'--rate must be > 0, got {args.rate!r}')
+    _need_rclpy('ccf play')
     import rclpy
     from rclpy.executors import ExternalShutdownException
     from tqdm import tqdm
@@ -115,6 +170,10 @@ def cmd_play(args: argparse.Namespace) -> int:
 def cmd_demo(args: argparse.Namespace) -> int:
     from .offline.demo import run_demo
 
+    if not args.offline_only:
+        _need_rclpy('the live part of ccf demo (or pass --offline-only)')
+    if not args.live_rate > 0:
+        raise ParameterError(f'--live-rate must be > 0, got {args.live_rate!r}')
     return run_demo(Path(args.output_dir), duration_s=args.duration, seed=args.seed, live=not args.offline_only,
                     live_rate=args.live_rate)
 
@@ -125,8 +184,8 @@ def cmd_study(args: argparse.Namespace) -> int:
     from .study.run import StudyOptions, run_study
 
     out = Path(args.output)
-    if out.exists() and any(out.iterdir()) and not args.overwrite:
-        raise ValueError(f'{out} exists and is not empty (use --overwrite)')
+    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not args.overwrite:
+        raise CcfError(f'{out} exists and is not empty (use --overwrite)')
     for bag in args.bags:
         if not Path(bag).exists():
             raise BagError(f'{bag}: no such bag')
@@ -140,8 +199,7 @@ def cmd_study(args: argparse.Namespace) -> int:
     )
     topics = Topics(args.imu_topic, args.mag_topic, args.reference, args.mask_topic or None)
     results = run_study(args.bags, opts, topics=topics, progress=not args.quiet)
-    command = 'ccf study ' + ' '.join(sys.argv[2:]) if len(sys.argv) > 2 else ''
-    summary = write_report(results, out, command)
+    summary = write_report(results, out, 'ccf ' + shlex.join(args.argv))
     for v in summary['verdicts']:
         print(f'claim {v["claim"]} ({v["formulation"]}): {v["verdict"]}')
     print(f'report: {out / "report.md"}  ({len(summary["figures"])} figures, results.json; '
@@ -151,85 +209,110 @@ def cmd_study(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     from . import __version__
+    from .offline import magcal
+    from .offline.bagio import STORAGES
 
-    p = argparse.ArgumentParser(prog='ccf', description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(prog='ccf', description=__doc__, formatter_class=HelpFormatter)
     p.add_argument('--version', action='version', version=f'ccf_ros {__version__}')
+    p.add_argument('--debug', action='store_true', help='show the traceback of input errors too')
     sub = p.add_subparsers(dest='command', required=True, metavar='COMMAND')
 
-    r = sub.add_parser('replay', help='run the filter over a bag, write /imu/data and /imu/gyro_bias to a new bag')
+    def add(name: str, text: str) -> argparse.ArgumentParser:
+        return sub.add_parser(name, help=text, description=text, formatter_class=HelpFormatter)
+
+    r = add('replay', 'run the filter over a bag, write /imu/data and /imu/gyro_bias to a new bag')
     r.add_argument('bag', help='input: rosbag2 directory (mcap or sqlite3) or ROS 1 .bag')
     r.add_argument('-o', '--output', required=True, help='output rosbag2 directory')
-    r.add_argument('--imu-topic', default='/imu/data_raw')
-    r.add_argument('--mag-topic', default='/imu/mag')
+    r.add_argument('--imu-topic', default='/imu/data_raw', help='sensor_msgs/Imu input topic')
+    r.add_argument('--mag-topic', default='/imu/mag', help='sensor_msgs/MagneticField input topic')
     r.add_argument('--no-mag', action='store_true', help='ignore the magnetometer (6-D filter)')
-    r.add_argument('--params-file', help='ROS 2 parameters YAML, as for the node (config/ccf.yaml)')
-    r.add_argument('--param', action='append', metavar='NAME=VALUE', help='set one parameter (repeatable)')
+    r.add_argument('--params-file', action='append', metavar='FILE',
+                   help='ROS 2 parameters YAML, as for the node (config/ccf.yaml, a ccf calibrate-mag result); '
+                   'repeatable, a later file overrides an earlier one')
+    r.add_argument('--param', action='append', metavar='NAME=VALUE',
+                   help='set one parameter, over the parameters files (repeatable)')
     r.add_argument('--copy-input', action='store_true', help='also copy every input message to the output')
     r.add_argument('--overwrite', action='store_true', help='replace an existing output bag')
-    r.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap')
+    r.add_argument('--storage', choices=STORAGES, default='mcap', help='output storage')
     r.set_defaults(func=cmd_replay)
 
-    e = sub.add_parser('eval', help='score an orientation topic against a reference')
+    e = add('eval', 'score an orientation topic against a reference')
     e.add_argument('bag', help='bag holding the estimate')
     e.add_argument('--reference', required=True, help='reference topic (Imu, PoseStamped, QuaternionStamped, Odometry)')
-    e.add_argument('--reference-bag', help='bag holding the reference (default: BAG)')
-    e.add_argument('--estimate-topic', default='/imu/data')
+    e.add_argument('--reference-bag', help='bag holding the reference (if not given: BAG)')
+    e.add_argument('--estimate-topic', default='/imu/data', help='orientation topic to score')
     e.add_argument('--mask-topic', help='std_msgs/Bool topic: score only where true (BROAD: /ground_truth/moving)')
     e.add_argument('--json', metavar='FILE', help='write the figures as JSON')
     e.add_argument('--plot', metavar='FILE.png', help='plot roll/pitch/yaw of estimate and reference')
     e.set_defaults(func=cmd_eval)
 
-    s = sub.add_parser('simulate', help='write a synthetic IMU + magnetometer + ground-truth bag')
-    s.add_argument('-o', '--output', required=True)
-    s.add_argument('--duration', type=float, default=60.0, help='s (default 60)')
-    s.add_argument('--rate', type=float, default=286.0, help='Hz (default 286)')
-    s.add_argument('--seed', type=int, default=0)
-    s.add_argument('--overwrite', action='store_true')
-    s.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap')
+    s = add('simulate', 'write a synthetic IMU + magnetometer + ground-truth bag')
+    s.add_argument('-o', '--output', required=True, help='output rosbag2 directory')
+    s.add_argument('--duration', type=float, default=60.0, help='duration, s')
+    s.add_argument('--rate', type=float, default=286.0, help='IMU and magnetometer rate, Hz')
+    s.add_argument('--seed', type=int, default=0, help='random seed (same seed, same bag)')
+    s.add_argument('--overwrite', action='store_true', help='replace an existing output bag')
+    s.add_argument('--storage', choices=STORAGES, default='mcap', help='output storage')
     s.set_defaults(func=cmd_simulate)
 
-    pl = sub.add_parser('play', help='publish a bag over DDS at recorded timing (needs the ROS 2 wheels)')
-    pl.add_argument('bag')
-    pl.add_argument('--rate', type=float, default=1.0, help='speed factor (default 1.0)')
+    pl = add('play', 'publish a bag over DDS at recorded timing (needs the ROS 2 wheels)')
+    pl.add_argument('bag', help='rosbag2 directory or ROS 1 .bag')
+    pl.add_argument('--rate', type=float, default=1.0, help='speed factor')
     pl.add_argument('--loop', action='store_true', help='start over at the end (the node resets on the jump back)')
-    pl.add_argument('--topics', help='comma-separated topics to play (default all)')
+    pl.add_argument('--topics', help='comma-separated topics to play (if not given: all)')
     pl.add_argument('--clock', action='store_true', help='also publish /clock from the recording times')
     pl.set_defaults(func=cmd_play)
 
-    d = sub.add_parser('demo', help='simulate, filter, evaluate and plot: the main job on built-in data')
-    d.add_argument('--output-dir', default=str(Path(tempfile.gettempdir()) / 'ccf_demo'))
-    d.add_argument('--duration', type=float, default=60.0)
-    d.add_argument('--seed', type=int, default=1)
+    d = add('demo', 'simulate, filter, evaluate and plot: the main job on built-in data')
+    d.add_argument('--output-dir', default=str(Path(tempfile.gettempdir()) / 'ccf_demo'), help='where bags and plot go')
+    d.add_argument('--duration', type=float, default=60.0, help='simulated duration, s')
+    d.add_argument('--seed', type=int, default=1, help='random seed of the simulation')
     d.add_argument('--offline-only', action='store_true', help='skip the live ccf_node run')
-    d.add_argument('--live-rate', type=float, default=4.0, help='playback speed into the live node (default 4x)')
+    d.add_argument('--live-rate', type=float, default=4.0, help='playback speed factor into the live node')
     d.set_defaults(func=cmd_demo)
-    st = sub.add_parser('study', help="reproduce the paper's experiments on bags with a reference: report.md, figures, JSON")
+
+    st = add('study', "reproduce the paper's experiments on bags with a reference: report.md, figures, JSON")
     st.add_argument('bags', nargs='+', help='bags with IMU, magnetometer and reference orientation (BROAD layout)')
     st.add_argument('-o', '--output', required=True, help='output directory')
-    st.add_argument('--imu-topic', default='/imu/data_raw')
-    st.add_argument('--mag-topic', default='/imu/mag')
+    st.add_argument('--imu-topic', default='/imu/data_raw', help='sensor_msgs/Imu topic')
+    st.add_argument('--mag-topic', default='/imu/mag', help='sensor_msgs/MagneticField topic')
     st.add_argument('--reference', default='/ground_truth/pose', help='reference orientation topic')
     st.add_argument('--mask-topic', default='/ground_truth/moving', help="Bool topic: score only where true ('' = all)")
-    st.add_argument('--long-run-s', type=float, default=7200.0, help='simulated long run, s (default 7200; 0 = skip)')
-    st.add_argument('--jobs', type=int, default=0, help='worker processes (default: CPUs)')
+    st.add_argument('--long-run-s', type=float, default=7200.0, help='simulated long run, s (0 = skip)')
+    st.add_argument('--jobs', type=int, default=0, help='worker processes (0 = one per CPU)')
     st.add_argument('--no-lscf', action='store_true', help='skip the least-squares gain fits (no scipy needed)')
-    st.add_argument('--lscf-iterations', type=int, default=8)
+    st.add_argument('--lscf-iterations', type=int, default=8, help='least-squares iterations per fit')
     st.add_argument('--repetitions', type=int, default=20, help='timing repetitions (Fig 12)')
     st.add_argument('--bode-frequencies', type=int, default=7, help='measured frequencies per Bode case')
-    st.add_argument('--overwrite', action='store_true')
+    st.add_argument('--overwrite', action='store_true', help='write into a non-empty output directory')
     st.add_argument('--quiet', action='store_true', help='no progress bars')
     st.set_defaults(func=cmd_study)
+
+    magcal.add_parser(sub).formatter_class = HelpFormatter
+
+    for sp in sub.choices.values():
+        # Also after the subcommand (`ccf replay ... --debug`); SUPPRESS keeps `ccf --debug replay` working.
+        sp.add_argument('--debug', action='store_true', default=argparse.SUPPRESS,
+                        help='show the traceback of input errors too')
     return p
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run one ``ccf`` command; returns the exit code. An exception other than :class:`CcfError` propagates."""
+    argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
+    args.argv = argv
     try:
         return int(args.func(args))
-    except (BagError, ValueError) as err:
-        print(f'ccf {args.command}: error: {err}', file=sys.stderr)
+    except CcfError as err:
+        if args.debug:
+            raise
+        message = ' '.join(str(err).split('\n'))
+        print(f'ccf {args.command}: error: {message}', file=sys.stderr)
         return 2
     except KeyboardInterrupt:
+        if args.debug:
+            traceback.print_exc()
         print(f'ccf {args.command}: interrupted', file=sys.stderr)
         return 130
 

@@ -1,0 +1,274 @@
+"""The ``ccf`` command: the error rule (input errors one line and exit 2, bugs a traceback, --debug, Ctrl-C 130),
+defaults in every --help, calibrate-mag wired in. Simulated data only: runs without ../shared."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ccf_ros.cli import build_parser, main
+from ccf_ros.engine import ImuEngine
+from ccf_ros.errors import BagError, CcfError, ParameterError
+
+#: Raises an exception of the type named by CCF_BUG in the quaternion CCF's step after 3000 samples (a filter bug
+#: mid-bag); the rest of the command runs unchanged.
+FILTER_BUG = '''
+    import os
+    from ccf_ros.core.ccf import QuaternionCcf
+
+    _step, _n = QuaternionCcf._step, [0]
+
+    def step(self, *args, **kwargs):
+        _n[0] += 1
+        if _n[0] > 3000:
+            raise {exc}('injected filter bug')
+        return _step(self, *args, **kwargs)
+
+    QuaternionCcf._step = step
+'''
+
+#: Makes every IMU sample take 1 ms more (a 60 s bag replays in ~20 s): time to press Ctrl-C.
+SLOW_ENGINE = '''
+    import time
+    from ccf_ros.engine import ImuEngine
+
+    _on_imu = ImuEngine.on_imu
+    ImuEngine.on_imu = lambda self, *args: (time.sleep(0.001), _on_imu(self, *args))[1]
+'''
+
+
+def _command(args: tuple[object, ...], patch: str) -> list[str]:
+    script = textwrap.dedent(patch) + '\nimport sys\nfrom ccf_ros.cli import main\nsys.exit(main(sys.argv[1:]))\n'
+    return [sys.executable, '-c', script, *map(str, args)]
+
+
+def ccf_process(*args: object, patch: str = '') -> subprocess.CompletedProcess:
+    """``ccf ARGS`` in a new Python process, after running ``patch``."""
+    return subprocess.run(_command(args, patch), capture_output=True, text=True, timeout=300)
+
+
+def ccf_started(*args: object, patch: str = '') -> subprocess.Popen:
+    """``ccf ARGS`` started in a new Python process (stderr piped), after running ``patch``."""
+    return subprocess.Popen(_command(args, patch), stderr=subprocess.PIPE, text=True)
+
+
+def one_line(stderr: str) -> str:
+    """The single line of an input error; fails on a traceback or several lines."""
+    assert 'Traceback' not in stderr, stderr
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1, stderr
+    return lines[0]
+
+
+def nothing_left(directory: Path, *names: str) -> None:
+    """Neither the outputs nor their hidden staging directories exist."""
+    for name in names:
+        assert not (directory / name).exists()
+        assert not (directory / f'.{name}.partial').exists()
+
+
+# --- the error rule ----------------------------------------------------------------------------------------------
+@pytest.mark.parametrize('exc', ['RuntimeError', 'ValueError'])
+def test_a_filter_bug_during_replay_shows_its_traceback_not_a_bag_error(sim_bag, tmp_path, exc):
+    """A ValueError too: the core raises ValueError for bad parameters, but one from inside the filter is a bug."""
+    r = ccf_process('replay', sim_bag, '-o', tmp_path / 'out', patch=FILTER_BUG.format(exc=exc))
+    assert r.returncode == 1, r.stderr
+    assert 'Traceback' in r.stderr and f'{exc}: injected filter bug' in r.stderr
+    assert 'in step' in r.stderr  # the frame that raised is shown
+    assert 'unreadable' not in r.stderr and 'error:' not in r.stderr
+    nothing_left(tmp_path, 'out')
+
+
+def test_an_engine_bug_propagates_from_main_unchanged(sim_bag, tmp_path, monkeypatch, capsys):
+    def broken(self, t_s, gyr, acc):
+        raise RuntimeError('engine bug')
+
+    monkeypatch.setattr(ImuEngine, 'on_imu', broken)
+    with pytest.raises(RuntimeError, match='engine bug') as info:
+        main(['replay', str(sim_bag), '-o', str(tmp_path / 'out')])
+    assert not isinstance(info.value, CcfError) and info.value.__cause__ is None
+    assert 'unreadable' not in capsys.readouterr().err
+    nothing_left(tmp_path, 'out')
+
+
+def test_truncated_bag_is_one_line_and_exit_2(sim_bag, tmp_path):
+    import shutil
+
+    bad = shutil.copytree(sim_bag, tmp_path / 'truncated')
+    mcap = next(bad.glob('*.mcap'))
+    data = mcap.read_bytes()
+    mcap.write_bytes(data[: len(data) // 2])
+    r = ccf_process('replay', bad, '-o', tmp_path / 'o')
+    assert r.returncode == 2
+    assert one_line(r.stderr).startswith('ccf replay: error: ') and 'truncated' in r.stderr
+    nothing_left(tmp_path, 'o')
+
+
+def test_bag_corrupt_in_the_middle_is_one_line_and_no_half_bag(sim_bag, tmp_path):
+    """Opens fine, fails while reading (after part of the output is written): still one line, nothing left."""
+    import shutil
+
+    bad = shutil.copytree(sim_bag, tmp_path / 'corrupt')
+    mcap = next(bad.glob('*.mcap'))
+    data = bytearray(mcap.read_bytes())
+    mid = len(data) // 2
+    data[mid:mid + 2000] = b'\xab' * 2000
+    mcap.write_bytes(bytes(data))
+    r = ccf_process('replay', bad, '-o', tmp_path / 'o')
+    assert r.returncode == 2
+    assert 'bag is unreadable or truncated' in one_line(r.stderr)
+    nothing_left(tmp_path, 'o')
+
+
+@pytest.mark.parametrize(
+    ('param', 'expected'),
+    [
+        ('tau_acc_s=-3', ('tau_acc_s', '-3')),
+        ('tau_acc_s=fast', ('tau_acc_s', 'fast')),
+        ('use_mag=maybe', ('use_mag', 'maybe')),
+        ('no_such_parameter=1', ('no_such_parameter',)),
+        ('kp=3', ('kp', 'does not apply')),  # an euler gain, and the default filter is the quaternion CCF
+        ('tau_acc_s', ('--param expects NAME=VALUE',)),
+    ],
+)
+def test_a_bad_param_is_one_line_naming_it(sim_bag, tmp_path, capsys, param, expected):
+    assert main(['replay', str(sim_bag), '-o', str(tmp_path / 'o'), '--param', param]) == 2
+    line = one_line(capsys.readouterr().err)
+    assert line.startswith('ccf replay: error: ')
+    for text in expected:
+        assert text in line
+    nothing_left(tmp_path, 'o')
+
+
+def test_a_param_that_does_not_apply_is_refused_even_with_a_params_file(sim_bag, tmp_path, capsys):
+    """A parameters file holds every filter's parameters (those that do not apply are ignored), but a name given
+    on the command line must apply to the selected filter."""
+    cfg = Path(__file__).resolve().parents[1] / 'config' / 'ccf.yaml'
+    assert main(['replay', str(sim_bag), '-o', str(tmp_path / 'o'), '--params-file', str(cfg), '--param', 'kp=3']) == 2
+    assert "'kp' does not apply" in one_line(capsys.readouterr().err)
+
+
+def test_bad_params_files_are_one_line(sim_bag, tmp_path, capsys):
+    bad_yaml = tmp_path / 'bad.yaml'
+    bad_yaml.write_text('ccf_node:\n  ros__parameters:\n    tau_acc_s: [1,\n')
+    no_params = tmp_path / 'no_params.yaml'
+    no_params.write_text('ccf_node:\n  tau_acc_s: 1.0\n')
+    bad_value = tmp_path / 'bad_value.yaml'
+    bad_value.write_text('/**:\n  ros__parameters:\n    tau_mag_s: -1.0\n')
+    cases = [
+        (tmp_path / 'missing.yaml', ('cannot read', 'missing.yaml')),
+        (bad_yaml, ('not valid YAML', 'bad.yaml')),
+        (no_params, ('no ros__parameters', 'no_params.yaml')),
+        (bad_value, ('tau_mag_s', '-1')),
+    ]
+    for path, texts in cases:
+        assert main(['replay', str(sim_bag), '-o', str(tmp_path / 'o'), '--params-file', str(path)]) == 2
+        line = one_line(capsys.readouterr().err)
+        assert all(text in line for text in texts), line
+
+
+def test_other_input_errors_are_one_line(sim_bag, tmp_path, capsys):
+    out = tmp_path / 'exists'
+    out.mkdir()
+    cases = [
+        (['replay', str(sim_bag), '-o', str(out)], 'exists; pass --overwrite'),
+        (['replay', str(sim_bag), '-o', str(tmp_path / 'x'), '--imu-topic', '/nope'], '/nope'),
+        (['replay', str(tmp_path / 'nothing'), '-o', str(tmp_path / 'x')], 'no such bag'),
+        (['replay', str(sim_bag), '-o', str(tmp_path / 'no' / 'dir')], 'cannot create'),
+        (['simulate', '-o', str(tmp_path / 's'), '--duration', '0'], 'must be > 0'),
+        (['play', str(sim_bag), '--rate', '0'], '--rate must be > 0'),
+        (['eval', str(sim_bag), '--reference', '/ground_truth/pose', '--json', str(tmp_path / 'no' / 'x.json')],
+         'no such directory'),
+        (['eval', str(sim_bag), '--reference', '/ground_truth/pose'], '/imu/data'),  # no estimate in a raw bag
+        (['demo', '--offline-only', '--live-rate', '-1'], '--live-rate'),
+    ]
+    for argv, text in cases:
+        assert main(argv) == 2, argv
+        line = one_line(capsys.readouterr().err)
+        assert line.startswith(f'ccf {argv[0]}: error: ') and text in line, (argv, line)
+    nothing_left(tmp_path, 'x', 's')
+
+
+def test_debug_reraises_input_errors_with_their_traceback(sim_bag, tmp_path):
+    missing = tmp_path / 'nothing'
+    for argv in (['--debug', 'replay', str(missing), '-o', str(tmp_path / 'o')],
+                 ['replay', str(missing), '-o', str(tmp_path / 'o'), '--debug']):
+        with pytest.raises(BagError, match='no such bag'):
+            main(argv)
+    with pytest.raises(ParameterError, match='tau_acc_s'):
+        main(['--debug', 'replay', str(sim_bag), '-o', str(tmp_path / 'o'), '--param', 'tau_acc_s=-1'])
+    r = ccf_process('--debug', 'replay', missing, '-o', tmp_path / 'o')
+    assert r.returncode == 1 and 'Traceback' in r.stderr and 'BagError: ' in r.stderr
+    # Without --debug the same is one line.
+    r = ccf_process('replay', missing, '-o', tmp_path / 'o')
+    assert r.returncode == 2 and 'no such bag' in one_line(r.stderr)
+
+
+def test_ctrl_c_exits_130_and_leaves_no_half_bag(sim_bag, tmp_path):
+    out = tmp_path / 'out'
+    p = ccf_started('replay', sim_bag, '-o', out, patch=SLOW_ENGINE)
+    staging = tmp_path / '.out.partial'
+    deadline = time.time() + 60
+    while not staging.exists() and time.time() < deadline and p.poll() is None:
+        time.sleep(0.05)
+    time.sleep(1.0)  # well into the replay
+    assert p.poll() is None, 'replay ended before Ctrl-C'
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 130, err
+    assert one_line(err) == 'ccf replay: interrupted'
+    nothing_left(tmp_path, 'out')
+
+
+# --- calibrate-mag through ccf -------------------------------------------------------------------------------
+def test_calibrate_mag_is_a_ccf_subcommand_and_its_errors_are_one_line(sim_bag, tmp_path, monkeypatch, capsys):
+    from ccf_ros.offline import magcal
+
+    assert main(['calibrate-mag', str(sim_bag), '--mag-topic', '/imu/data_raw', '-o', str(tmp_path / 'a.yaml')]) == 2
+    assert 'expected sensor_msgs/msg/MagneticField' in one_line(capsys.readouterr().err)
+    assert main(['calibrate-mag', str(sim_bag), '--field-norm-ut', '-5', '-o', str(tmp_path / 'a.yaml')]) == 2
+    assert '--field-norm-ut' in one_line(capsys.readouterr().err)
+    # Data that cannot give a calibration (a sensor at rest): CalibrationError, one line.
+    monkeypatch.setattr(magcal, 'read_mag', lambda bag, topic: np.tile([20e-6, 0.0, -40e-6], (500, 1))
+                        + 1e-7 * np.random.default_rng(0).standard_normal((500, 3)))
+    assert main(['calibrate-mag', str(sim_bag), '-o', str(tmp_path / 'b.yaml')]) == 2
+    line = one_line(capsys.readouterr().err)
+    assert line.startswith('ccf calibrate-mag: error: ') and 'rotate the sensor' in line
+    assert not any(tmp_path.iterdir())
+
+
+# --- help ----------------------------------------------------------------------------------------------------
+def subcommands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
+    action = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return dict(action.choices)
+
+
+def test_every_subcommand_help_shows_every_default():
+    subs = subcommands(build_parser())
+    assert set(subs) == {'replay', 'eval', 'simulate', 'play', 'demo', 'study', 'calibrate-mag'}
+    n_checked = 0
+    for name, sub in subs.items():
+        text = ' '.join(sub.format_help().split())
+        for action in sub._actions:
+            if action.option_strings and action.nargs != 0 and action.default not in (None, argparse.SUPPRESS):
+                assert f'(default: {action.default})' in text, (name, action.option_strings)
+                n_checked += 1
+        assert '--debug' in text
+    assert n_checked >= 20  # 22 when written
+    assert 'calibrate-mag' in build_parser().format_help()
+
+
+def test_help_exits_0(capsys):
+    for argv in (['--help'], ['replay', '--help'], ['calibrate-mag', '--help']):
+        with pytest.raises(SystemExit) as info:
+            main(argv)
+        assert info.value.code == 0
+    assert '(default: mag_calibration.yaml)' in ' '.join(capsys.readouterr().out.split())
