@@ -1,6 +1,6 @@
 """``ccf``: offline tools on recorded bags, no ROS install needed.
 
-Subcommands: replay, eval, simulate, play, demo, study, calibrate-mag.
+Subcommands: replay, eval, simulate, play, demo, study, calibrate-mag, params.
 
 A problem with the input (a bag, a parameter, an option, an output that exists) is one line on stderr and exit
 code 2; Ctrl-C exits 130. Anything else is a bug in ccf_ros: it shows its traceback (exit code 1). ``--debug``
@@ -207,8 +207,98 @@ def cmd_study(args: argparse.Namespace) -> int:
     return 0
 
 
+#: Units by name suffix, longest first (``_rad_s_sqrt_s`` before ``_rad_s`` before ``_s``).
+UNIT_SUFFIXES = (
+    ('_rad_s_sqrt_s', '(rad/s)/√s'),
+    ('_rad_sqrt_s', 'rad/√s'),
+    ('_rad_s', 'rad/s'),
+    ('_m_s2', 'm/s²'),
+    ('_rad', 'rad'),
+    ('_hz', 'Hz'),
+    ('_s', 's'),
+)
+
+
+def unit_of(name: str) -> str:
+    """The unit a parameter's name ends with (see :data:`UNIT_SUFFIXES`), ``-`` if none."""
+    return next((unit for suffix, unit in UNIT_SUFFIXES if name.endswith(suffix)), '-')
+
+
+def format_value(value: Any) -> str:
+    """A default as it is written in a parameters file or ``--param``: ``true``, ``2.5``, ``[1, 0, 0]``."""
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, float):
+        return f'{value:g}'
+    if isinstance(value, (tuple, list)):
+        return '[' + ', '.join(format_value(v) for v in value) + ']'
+    return str(value)
+
+
+def params_rows(
+    filter_name: str | None = None, formulation: str | None = None
+) -> tuple[str, list[tuple[str, str, str, str]]]:
+    """A title and ``(name, default, unit, description)`` rows: every setting, or those of one filter.
+
+    Read from :func:`ccf_ros.settings.all_defaults`, :data:`ccf_ros.settings.DESCRIPTIONS` and the filter
+    registry at call time. With ``filter_name``: the selected filter's own parameters (its defaults) and the
+    settings that are not filter parameters (engine and node), which apply to every filter.
+    """
+    import dataclasses
+
+    from .core.registry import FILTERS, SELECTORS, all_param_names, param_fields
+    from .settings import DESCRIPTIONS, all_defaults
+
+    defaults = all_defaults()
+    if filter_name is None:
+        title = 'every parameter (filter and adapter) with its default; set with --param NAME=VALUE or --params-file'
+        chosen = dict(defaults)
+    else:
+        forms = [f for k, f in FILTERS if k == filter_name]
+        if not forms:
+            raise ParameterError(f'no filter {filter_name!r} (choose: {", ".join(sorted({k for k, _ in FILTERS}))})')
+        if formulation is None:
+            formulation = SELECTORS['formulation'] if SELECTORS['formulation'] in forms else forms[0]
+        if formulation not in forms:
+            raise ParameterError(f'filter {filter_name} has no formulation {formulation!r} (choose: {", ".join(forms)})')
+        fields = param_fields(FILTERS[(filter_name, formulation)][0])
+        filter_names = all_param_names()
+        chosen = {}
+        for name, value in defaults.items():
+            if name in fields:
+                f = fields[name]
+                if f.default is not dataclasses.MISSING:
+                    chosen[name] = f.default
+                elif f.default_factory is not dataclasses.MISSING:
+                    chosen[name] = f.default_factory()
+                else:
+                    chosen[name] = value
+            elif name not in filter_names:
+                chosen[name] = value
+        title = (f'parameters of filter={filter_name} formulation={formulation}, and the engine and node settings '
+                 'that apply to every filter')
+    rows = [(name, format_value(value), unit_of(name), DESCRIPTIONS.get(name, '')) for name, value in chosen.items()]
+    return title, rows
+
+
+def cmd_params(args: argparse.Namespace) -> int:
+    from .settings import config_yaml
+
+    if args.yaml:
+        print(config_yaml(), end='')
+        return 0
+    title, rows = params_rows(args.filter, args.formulation)
+    header = ('NAME', 'DEFAULT', 'UNIT', 'DESCRIPTION')
+    widths = [max(len(r[i]) for r in [header, *rows]) for i in range(3)]
+    print(title)
+    for row in [header, *rows]:
+        print('  '.join(cell.ljust(w) for cell, w in zip(row[:3], widths, strict=True)) + '  ' + row[3])
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from . import __version__
+    from .core.registry import FILTERS
     from .offline import magcal
     from .offline.bagio import STORAGES
 
@@ -230,7 +320,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help='ROS 2 parameters YAML, as for the node (config/ccf.yaml, a ccf calibrate-mag result); '
                    'repeatable, a later file overrides an earlier one')
     r.add_argument('--param', action='append', metavar='NAME=VALUE',
-                   help='set one parameter, over the parameters files (repeatable)')
+                   help='set one parameter, over the parameters files (repeatable; list: ccf params)')
     r.add_argument('--copy-input', action='store_true', help='also copy every input message to the output')
     r.add_argument('--overwrite', action='store_true', help='replace an existing output bag')
     r.add_argument('--storage', choices=STORAGES, default='mcap', help='output storage')
@@ -289,6 +379,16 @@ def build_parser() -> argparse.ArgumentParser:
     st.set_defaults(func=cmd_study)
 
     magcal.add_parser(sub).formatter_class = HelpFormatter
+
+    pa = add('params', 'list every parameter with its default, unit and description')
+    what = pa.add_mutually_exclusive_group()
+    what.add_argument('--yaml', action='store_true', help='print config/ccf.yaml instead: every parameter as a '
+                      'ROS 2 parameters file')
+    what.add_argument('--filter', choices=sorted({k for k, _ in FILTERS}),
+                      help='only what applies to this filter (if not given: everything)')
+    pa.add_argument('--formulation', choices=sorted({f for _, f in FILTERS}),
+                    help='with --filter ccf: quaternion or euler (if not given: the filter\'s default)')
+    pa.set_defaults(func=cmd_params)
 
     for sp in sub.choices.values():
         # Also after the subcommand (`ccf replay ... --debug`); SUPPRESS keeps `ccf --debug replay` working.

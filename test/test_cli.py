@@ -1,5 +1,5 @@
 """The ``ccf`` command: the error rule (input errors one line and exit 2, bugs a traceback, --debug, Ctrl-C 130),
-defaults in every --help, calibrate-mag wired in. Simulated data only: runs without ../shared."""
+``ccf params``, defaults in every --help, calibrate-mag wired in. Simulated data only: runs without ../shared."""
 
 from __future__ import annotations
 
@@ -14,7 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ccf_ros.cli import build_parser, main
+from ccf_ros import settings
+from ccf_ros.cli import build_parser, format_value, main, unit_of
+from ccf_ros.core.registry import FILTERS, all_param_names, param_fields
 from ccf_ros.engine import ImuEngine
 from ccf_ros.errors import BagError, CcfError, ParameterError
 
@@ -245,6 +247,80 @@ def test_calibrate_mag_is_a_ccf_subcommand_and_its_errors_are_one_line(sim_bag, 
     assert not any(tmp_path.iterdir())
 
 
+# --- ccf params ----------------------------------------------------------------------------------------------
+def table(text: str) -> tuple[str, dict[str, dict[str, str]]]:
+    """Title and rows of ``ccf params`` by name, cut at the header's column starts (so alignment is checked)."""
+    lines = text.splitlines()
+    header = lines[1]
+    cols = ('NAME', 'DEFAULT', 'UNIT', 'DESCRIPTION')
+    starts = [header.index(c) for c in cols]
+    assert starts[0] == 0 and starts == sorted(starts)
+    rows = {}
+    for line in lines[2:]:
+        cells = [line[a:b].strip() for a, b in zip(starts, [*starts[1:], len(line)], strict=True)]
+        assert line[starts[1] - 2:starts[1]] == '  ' and line[starts[3] - 2:starts[3]] == '  ', line
+        rows[cells[0]] = dict(zip(cols[1:], cells[1:], strict=True))
+    return lines[0], rows
+
+
+def test_params_lists_every_parameter_with_default_unit_and_description(capsys):
+    assert main(['params']) == 0
+    _, rows = table(capsys.readouterr().out)
+    defaults = settings.all_defaults()
+    assert list(rows) == list(defaults)
+    for name, value in defaults.items():
+        assert rows[name] == {'DEFAULT': format_value(value), 'UNIT': unit_of(name),
+                              'DESCRIPTION': settings.DESCRIPTIONS[name]}, name
+    assert rows['tau_acc_s']['UNIT'] == 's' and rows['use_mag']['DEFAULT'] == 'true'
+    assert rows['ekf_q']['DEFAULT'] == '[5, 0.05, 10]'
+
+
+def test_params_reads_the_settings_when_it_runs(monkeypatch, capsys):
+    """Parameters added later (by anyone) appear without touching the command."""
+    monkeypatch.setattr(settings, 'all_defaults', lambda: {'new_rate_hz': 12.5, 'new_flag': False})
+    monkeypatch.setitem(settings.DESCRIPTIONS, 'new_rate_hz', 'a new rate')
+    assert main(['params']) == 0
+    _, rows = table(capsys.readouterr().out)
+    assert rows == {'new_rate_hz': {'DEFAULT': '12.5', 'UNIT': 'Hz', 'DESCRIPTION': 'a new rate'},
+                    'new_flag': {'DEFAULT': 'false', 'UNIT': '-', 'DESCRIPTION': ''}}
+
+
+@pytest.mark.parametrize(
+    ('name', 'unit'),
+    [('tau_acc_s', 's'), ('rest_gyro_rad_s', 'rad/s'), ('rest_acc_m_s2', 'm/s²'), ('gyro_bias_rate_hz', 'Hz'),
+     ('mag_dip_tol_rad', 'rad'), ('gyro_arw_rad_sqrt_s', 'rad/√s'), ('bias_walk_rad_s_sqrt_s', '(rad/s)/√s'),
+     ('alpha', '-'), ('use_mag', '-'), ('constant_dt', '-'), ('mag_bias_x', '-')],
+)
+def test_unit_from_the_name_suffix(name, unit):
+    assert unit_of(name) == unit
+
+
+def test_params_yaml_prints_config_yaml(capsys):
+    assert main(['params', '--yaml']) == 0
+    assert capsys.readouterr().out == settings.config_yaml()
+
+
+@pytest.mark.parametrize(('argv', 'key'), [(['--filter', 'ekf'], ('ekf', 'euler')),
+                                           (['--filter', 'ccf'], ('ccf', 'quaternion')),
+                                           (['--filter', 'ccf', '--formulation', 'euler'], ('ccf', 'euler')),
+                                           (['--filter', 'madgwick'], ('madgwick', 'quaternion'))])
+def test_params_of_one_filter(capsys, argv, key):
+    assert main(['params', *argv]) == 0
+    title, rows = table(capsys.readouterr().out)
+    assert f'filter={key[0]} formulation={key[1]}' in title
+    fields = param_fields(FILTERS[key][0])
+    adapter = [n for n in settings.all_defaults() if n not in all_param_names()]
+    assert set(rows) == set(fields) | set(adapter)
+    for name, f in fields.items():
+        assert rows[name]['DEFAULT'] == format_value(f.default), name  # the filter's own default
+    assert 'filter' not in rows and 'formulation' not in rows
+
+
+def test_params_of_a_filter_in_a_formulation_it_lacks_is_one_line(capsys):
+    assert main(['params', '--filter', 'ekf', '--formulation', 'quaternion']) == 2
+    assert 'no formulation' in one_line(capsys.readouterr().err)
+
+
 # --- help ----------------------------------------------------------------------------------------------------
 def subcommands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
     action = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
@@ -253,7 +329,7 @@ def subcommands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentP
 
 def test_every_subcommand_help_shows_every_default():
     subs = subcommands(build_parser())
-    assert set(subs) == {'replay', 'eval', 'simulate', 'play', 'demo', 'study', 'calibrate-mag'}
+    assert set(subs) == {'replay', 'eval', 'simulate', 'play', 'demo', 'study', 'calibrate-mag', 'params'}
     n_checked = 0
     for name, sub in subs.items():
         text = ' '.join(sub.format_help().split())
@@ -262,12 +338,12 @@ def test_every_subcommand_help_shows_every_default():
                 assert f'(default: {action.default})' in text, (name, action.option_strings)
                 n_checked += 1
         assert '--debug' in text
-    assert n_checked >= 20  # 22 when written
-    assert 'calibrate-mag' in build_parser().format_help()
+    assert n_checked >= 20  # 24 when written
+    assert 'calibrate-mag' in build_parser().format_help() and 'params' in build_parser().format_help()
 
 
 def test_help_exits_0(capsys):
-    for argv in (['--help'], ['replay', '--help'], ['calibrate-mag', '--help']):
+    for argv in (['--help'], ['replay', '--help'], ['params', '--help'], ['calibrate-mag', '--help']):
         with pytest.raises(SystemExit) as info:
             main(argv)
         assert info.value.code == 0
