@@ -21,9 +21,10 @@ from ..core.pairing import MagPairer
 from ..core.quaternion import from_xyzw
 from ..errors import BagError
 
-__all__ = ['BagError', 'BagWriter', 'ImuArrays', 'connections_for', 'deserialize', 'open_bag', 'open_writer',
-           'read_bools', 'read_imu_arrays', 'read_messages', 'read_orientations', 'staged', 'stamp_s', 'typestore',
-           'unreadable']
+__all__ = [
+    'BagError', 'BagWriter', 'ImuArrays', 'connections_for', 'deserialize', 'in_bag_order', 'open_bag', 'open_writer',
+    'read_bools', 'read_imu_arrays', 'read_messages', 'read_orientations', 'staged', 'stamp_s', 'typestore', 'unreadable',
+]
 
 #: Storage plugins by the names ``--storage`` takes.
 STORAGES = ('mcap', 'sqlite3')
@@ -192,6 +193,17 @@ def connections_for(reader: Any, topic: str, required: bool = True) -> list[Any]
     return conns
 
 
+def in_bag_order(reader: Any, conns: Iterable[Any]) -> list[Any]:
+    """``conns`` in the order of ``reader.connections``.
+
+    rosbags' ROS 1 reader yields messages of equal receive time in the order of the connections it is given:
+    in the bag's order, a magnetometer stamped like the IMU comes first if its connection does (as recorded),
+    not after because the IMU topic was named first.
+    """
+    wanted = {id(c) for c in conns}
+    return [c for c in reader.connections if id(c) in wanted]
+
+
 @dataclass
 class ImuArrays:
     """IMU samples of a bag with the magnetometer paired as replay pairs it.
@@ -219,7 +231,7 @@ def read_imu_arrays(
     with open_bag(path) as reader:
         conns = connections_for(reader, imu_topic)
         if mag_topic:
-            conns += connections_for(reader, mag_topic, required=False)
+            conns = in_bag_order(reader, conns + connections_for(reader, mag_topic, required=False))
         for conn, _, raw in read_messages(reader, path, conns):
             msg = deserialize(reader, raw, conn.msgtype, path)
             if conn.topic == imu_topic:

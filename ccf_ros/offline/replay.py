@@ -17,6 +17,7 @@ from .bagio import (
     BagWriter,
     connections_for,
     deserialize,
+    in_bag_order,
     open_bag,
     open_writer,
     read_messages,
@@ -111,9 +112,7 @@ def _replay(
     serialize = ts.serialize_cdr
     imu_conns = connections_for(reader, imu_topic)
     mag_conns = connections_for(reader, mag_topic, required=False) if mag_topic else []
-    conns = imu_conns + mag_conns
-    if copy_input:
-        conns = list(reader.connections)
+    conns = list(reader.connections) if copy_input else in_bag_order(reader, imu_conns + mag_conns)
     n_total = sum(c.msgcount for c in imu_conns)
     is_ros1 = not reader.is2
     w_imu = writer.add_connection(out_imu_topic, Imu.__msgtype__, typestore=ts)
