@@ -239,6 +239,26 @@ def test_sqlite3_and_ros1_inputs_give_the_same_result(sim_bag, tmp_path):
         assert {'/imu/data_raw', '/imu/mag', '/imu/data', '/imu/gyro_bias'} <= {c.topic for c in r.connections}
 
 
+def test_replay_publishes_the_engines_rate_and_linear_acceleration(sim_bag, tmp_path):
+    """bias_corrected_rate and remove_gravity_vector change the written Imu as they change the node's, on the
+    fast path (CDR bytes patched) and the deserializing one (ROS 1 input) alike."""
+    from ccf_ros.settings import build
+
+    db3 = copy_bag(sim_bag, tmp_path / 'db3', stop_s=10.0, storage='sqlite3')
+    ros1 = to_ros1(db3, tmp_path / 'in.bag')
+    settings = {'bias_corrected_rate': True, 'remove_gravity_vector': True}
+    _, want = engine_outputs(db3, ImuEngine(*build(settings)))
+    raw = read_imu_arrays(db3)
+    for i, src in enumerate((db3, ros1)):
+        out = tmp_path / f'out{i}'
+        assert ccf(['replay', str(src), '-o', str(out), *(f'--param={k}=true' for k in settings)]) == 0
+        got = read_imu_arrays(out, imu_topic='/imu/data', mag_topic=None)
+        np.testing.assert_array_equal(got.gyr, [o.angular_velocity for o in want], err_msg=str(src))
+        np.testing.assert_array_equal(got.acc, [o.linear_acceleration for o in want])
+        assert 1e-4 < np.abs(got.gyr - raw.gyr).max() < 0.05  # the bias estimate, rad/s
+        assert np.median(np.abs(got.acc - raw.acc)[:, 2]) > 9.0  # gravity, mostly along z here
+
+
 def test_eval_interpolates_a_slower_estimate(sim_bag, tmp_path, capsys):
     out = tmp_path / 'out'
     assert ccf(['replay', str(sim_bag), '-o', str(out)]) == 0

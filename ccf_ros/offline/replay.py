@@ -1,4 +1,8 @@
-"""``ccf replay``: run the core over a recorded bag and write ``/imu/data`` and ``/imu/gyro_bias`` to a new bag."""
+"""``ccf replay``: run the core over a recorded bag and write ``/imu/data`` and ``/imu/gyro_bias`` to a new bag.
+
+``/imu/data`` is the input Imu with orientation and covariance filled in and, as the node publishes it, the
+angular velocity and linear acceleration the engine gives (``bias_corrected_rate``, ``remove_gravity_vector``).
+"""
 
 from __future__ import annotations
 
@@ -26,6 +30,11 @@ from .bagio import (
     unreadable,
 )
 from .fastcdr import LITTLE_ENDIAN_CDR, patch_imu, read_imu, read_mag, vector3_stamped
+
+#: Offsets of angular_velocity and linear_acceleration from orientation in a serialized Imu (as
+#: :func:`~ccf_ros.offline.fastcdr.read_imu` reads them): after 4 + 9 and 4 + 9 + 3 + 9 float64.
+ANGULAR_VELOCITY, LINEAR_ACCELERATION = 104, 200
+pack3 = struct.Struct('<3d').pack_into
 
 
 @dataclass
@@ -183,6 +192,10 @@ def _replay(
                     continue
                 buf = bytearray(msg)
                 patch_imu(buf, off, out.orientation_xyzw, out.covariance)
+                if out.angular_velocity is not None:  # bias_corrected_rate
+                    pack3(buf, off + ANGULAR_VELOCITY, *out.angular_velocity)
+                if out.linear_acceleration is not None:  # remove_gravity_vector
+                    pack3(buf, off + LINEAR_ACCELERATION, *out.linear_acceleration)
                 write(w_imu, t_rec, memoryview(buf))
                 write(w_bias, t_rec, vector3_stamped(msg, off, out.bias))
                 n_out += 1
@@ -195,6 +208,12 @@ def _replay(
                 o.x, o.y, o.z, o.w = out.orientation_xyzw
                 cov_buf[:] = out.covariance
                 msg.orientation_covariance = cov_buf
+                if out.angular_velocity is not None:
+                    v = msg.angular_velocity
+                    v.x, v.y, v.z = out.angular_velocity
+                if out.linear_acceleration is not None:
+                    v = msg.linear_acceleration
+                    v.x, v.y, v.z = out.linear_acceleration
                 bias_vec.x, bias_vec.y, bias_vec.z = out.bias
                 bias_msg.header = msg.header
                 write(w_imu, t_rec, serialize(msg, imu_type))
