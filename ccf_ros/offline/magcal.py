@@ -137,8 +137,8 @@ def _li_griffiths(x: np.ndarray) -> np.ndarray:
     try:
         S22_inv_S21 = np.linalg.solve(S22, S12.T)
         w, V = np.linalg.eig(np.linalg.solve(C1, S11 - S12 @ S22_inv_S21))
-    except np.linalg.LinAlgError:
-        raise CalibrationError(f'magnetometer samples are degenerate (no ellipsoid through them): {_HINT}') from None
+    except np.linalg.LinAlgError as err:
+        raise CalibrationError(f'magnetometer samples are degenerate (no ellipsoid through them): {_HINT}') from err
     # The constrained minimum is the eigenvector of the one positive eigenvalue.
     real = np.abs(w.imag) < 1e-9 * max(1.0, float(np.max(np.abs(w))))
     pos = np.flatnonzero(real & (w.real > 0))
@@ -150,8 +150,8 @@ def _li_griffiths(x: np.ndarray) -> np.ndarray:
     A = np.array([[a, h, g], [h, b, f], [g, f, c]])
     try:
         centre = -np.linalg.solve(A, v2[:3])
-    except np.linalg.LinAlgError:
-        raise CalibrationError(f'magnetometer samples do not lie on an ellipsoid: {_HINT}') from None
+    except np.linalg.LinAlgError as err:
+        raise CalibrationError(f'magnetometer samples do not lie on an ellipsoid: {_HINT}') from err
     scale = centre @ A @ centre - v2[3]
     M = A / scale
     if not np.all(np.isfinite(M)) or np.min(np.linalg.eigvalsh(M)) <= 0:
