@@ -183,6 +183,10 @@ def test_other_input_errors_are_one_line(sim_bag, tmp_path, capsys):
     cases = [
         (['replay', str(sim_bag), '-o', str(out)], 'exists; pass --overwrite'),
         (['replay', str(sim_bag), '-o', str(tmp_path / 'x'), '--imu-topic', '/nope'], '/nope'),
+        (['replay', str(sim_bag), '-o', str(tmp_path / 'x'), '--imu-topic', '/imu/mag'],
+         'topic /imu/mag is sensor_msgs/msg/MagneticField, expected sensor_msgs/msg/Imu'),
+        (['replay', str(sim_bag), '-o', str(tmp_path / 'x'), '--mag-topic', '/imu/data_raw'],
+         'expected sensor_msgs/msg/MagneticField'),
         (['replay', str(tmp_path / 'nothing'), '-o', str(tmp_path / 'x')], 'no such bag'),
         (['replay', str(sim_bag), '-o', str(tmp_path / 'no' / 'dir')], 'cannot create'),
         (['simulate', '-o', str(tmp_path / 's'), '--duration', '0'], 'must be > 0'),
@@ -190,6 +194,8 @@ def test_other_input_errors_are_one_line(sim_bag, tmp_path, capsys):
         (['eval', str(sim_bag), '--reference', '/ground_truth/pose', '--json', str(tmp_path / 'no' / 'x.json')],
          'no such directory'),
         (['eval', str(sim_bag), '--reference', '/ground_truth/pose'], '/imu/data'),  # no estimate in a raw bag
+        (['eval', str(sim_bag), '--reference', '/ground_truth/pose', '--estimate-topic', '/imu/data_raw',
+          '--mask-topic', '/imu/mag'], 'expected std_msgs/msg/Bool'),
         (['demo', '--offline-only', '--live-rate', '-1'], '--live-rate'),
     ]
     for argv, text in cases:

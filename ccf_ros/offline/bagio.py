@@ -184,12 +184,16 @@ def stamp_s(header: Any) -> float:
     return header.stamp.sec + header.stamp.nanosec * 1e-9
 
 
-def connections_for(reader: Any, topic: str, required: bool = True) -> list[Any]:
-    """Connections of ``topic``; raises :class:`BagError` listing the bag's topics if required and absent."""
+def connections_for(reader: Any, topic: str, required: bool = True, msgtype: str | None = None) -> list[Any]:
+    """Connections of ``topic``; :class:`BagError` listing the bag's topics if required and absent, or naming the
+    type if ``msgtype`` is given and the topic has another."""
     conns = [c for c in reader.connections if c.topic == topic]
     if required and not conns:
         have = ', '.join(sorted({c.topic for c in reader.connections})) or 'none'
         raise BagError(f'topic {topic} not in bag (topics: {have})')
+    for c in conns:
+        if msgtype is not None and c.msgtype != msgtype:
+            raise BagError(f'topic {topic} is {c.msgtype}, expected {msgtype}')
     return conns
 
 
@@ -229,9 +233,10 @@ def read_imu_arrays(
     t, g, a, m = [], [], [], []
     nan3 = (np.nan, np.nan, np.nan)
     with open_bag(path) as reader:
-        conns = connections_for(reader, imu_topic)
+        conns = connections_for(reader, imu_topic, msgtype='sensor_msgs/msg/Imu')
         if mag_topic:
-            conns = in_bag_order(reader, conns + connections_for(reader, mag_topic, required=False))
+            mag = connections_for(reader, mag_topic, required=False, msgtype='sensor_msgs/msg/MagneticField')
+            conns = in_bag_order(reader, conns + mag)
         for conn, _, raw in read_messages(reader, path, conns):
             msg = deserialize(reader, raw, conn.msgtype, path)
             if conn.topic == imu_topic:
@@ -285,7 +290,7 @@ def read_bools(path: str | Path, topic: str) -> tuple[np.ndarray, np.ndarray]:
     """Receive times ``(N,)`` s (bag time, std_msgs has no header) and values ``(N,)`` of a Bool topic."""
     t, v = [], []
     with open_bag(path) as reader:
-        conns = connections_for(reader, topic)
+        conns = connections_for(reader, topic, msgtype='std_msgs/msg/Bool')
         for conn, ts, raw in read_messages(reader, path, conns):
             t.append(ts * 1e-9)
             v.append(bool(deserialize(reader, raw, conn.msgtype, path).data))

@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..errors import BagError, CcfError, ParameterError
+from ..errors import CcfError, ParameterError
 from .bagio import connections_for, deserialize, open_bag, read_messages
 
 #: Fewest usable samples :func:`fit` accepts.
@@ -294,10 +294,7 @@ def read_mag(bag: str | Path, topic: str = '/imu/mag') -> np.ndarray:
     """All magnetic_field vectors (N, 3), T, of a sensor_msgs/MagneticField topic; :class:`BagError` if absent."""
     out: list[tuple[float, float, float]] = []
     with open_bag(bag) as reader:
-        conns = connections_for(reader, topic)
-        for c in conns:
-            if not c.msgtype.endswith('/MagneticField'):
-                raise BagError(f'topic {topic} is {c.msgtype}, expected sensor_msgs/msg/MagneticField')
+        conns = connections_for(reader, topic, msgtype='sensor_msgs/msg/MagneticField')
         for conn, _, raw in read_messages(reader, bag, conns):
             f = deserialize(reader, raw, conn.msgtype, bag).magnetic_field
             out.append((f.x, f.y, f.z))

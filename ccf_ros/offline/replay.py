@@ -119,8 +119,9 @@ def _replay(
     Vector3 = ts.types['geometry_msgs/msg/Vector3']
     Vector3Stamped = ts.types['geometry_msgs/msg/Vector3Stamped']
     serialize = ts.serialize_cdr
-    imu_conns = connections_for(reader, imu_topic)
-    mag_conns = connections_for(reader, mag_topic, required=False) if mag_topic else []
+    imu_conns = connections_for(reader, imu_topic, msgtype='sensor_msgs/msg/Imu')
+    mag_conns = (connections_for(reader, mag_topic, required=False, msgtype='sensor_msgs/msg/MagneticField')
+                 if mag_topic else [])
     conns = list(reader.connections) if copy_input else in_bag_order(reader, imu_conns + mag_conns)
     n_total = sum(c.msgcount for c in imu_conns)
     is_ros1 = not reader.is2
@@ -143,8 +144,6 @@ def _replay(
     )
     imu_ids = {c.id for c in imu_conns}
     mag_ids = {c.id for c in mag_conns}
-    imu_fast = {c.id for c in imu_conns if c.msgtype == 'sensor_msgs/msg/Imu'}
-    mag_fast = {c.id for c in mag_conns if c.msgtype == 'sensor_msgs/msg/MagneticField'}
     on_imu = engine.on_imu
     # Serialized right away, so one buffer and one bias message serve every sample.
     cov_buf = np.zeros(9)
@@ -239,10 +238,10 @@ def _replay(
             # Little-endian CDR (rosbag2): read and patch the bytes; otherwise go through rosbags.
             fast = not is_ros1 and raw[:2] == LITTLE_ENDIAN_CDR
             if cid in imu_ids:
-                block.append((3, t_rec, raw) if fast and cid in imu_fast
+                block.append((3, t_rec, raw) if fast
                              else (0, t_rec, deserialize(reader, raw, conn.msgtype, bag_in)))
             elif cid in mag_ids:
-                block.append((4, t_rec, raw) if fast and cid in mag_fast
+                block.append((4, t_rec, raw) if fast
                              else (1, t_rec, deserialize(reader, raw, conn.msgtype, bag_in)))
             if len(block) >= 2048:
                 flush()
