@@ -287,6 +287,8 @@ def cmd_params(args: argparse.Namespace) -> int:
     if args.yaml:
         print(config_yaml(), end='')
         return 0
+    if args.formulation and not args.filter:
+        raise ParameterError('--formulation needs --filter NAME')
     title, rows = params_rows(args.filter, args.formulation)
     header = ('NAME', 'DEFAULT', 'UNIT', 'DESCRIPTION')
     widths = [max(len(r[i]) for r in [header, *rows]) for i in range(3)]

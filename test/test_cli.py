@@ -325,6 +325,8 @@ def test_params_of_one_filter(capsys, argv, key):
 def test_params_of_a_filter_in_a_formulation_it_lacks_is_one_line(capsys):
     assert main(['params', '--filter', 'ekf', '--formulation', 'quaternion']) == 2
     assert 'no formulation' in one_line(capsys.readouterr().err)
+    assert main(['params', '--formulation', 'euler']) == 2
+    assert '--formulation needs --filter' in one_line(capsys.readouterr().err)
 
 
 # --- help ----------------------------------------------------------------------------------------------------
