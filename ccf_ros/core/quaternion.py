@@ -60,7 +60,8 @@ def quat_normalize(q: ArrayLike) -> FloatArray:
     """Unit quaternion with non-negative ``w`` (one representative of ``±q``)."""
     a = np.asarray(q, dtype=float)
     u = a / np.linalg.norm(a, axis=-1, keepdims=True)
-    return np.where(u[..., :1] < 0.0, -u, u)
+    out: FloatArray = np.where(u[..., :1] < 0.0, -u, u)
+    return out
 
 
 def quat_rotate(q: ArrayLike, v: ArrayLike) -> FloatArray:
@@ -70,13 +71,15 @@ def quat_rotate(q: ArrayLike, v: ArrayLike) -> FloatArray:
     u = q[..., 1:]
     w = q[..., :1]
     t = 2.0 * np.cross(u, v)
-    return v + w * t + np.cross(u, t)
+    out: FloatArray = v + w * t + np.cross(u, t)
+    return out
 
 
 def quat_angle(q: ArrayLike) -> FloatArray:
     """Rotation angle of unit quaternions in rad, in ``[0, pi]``."""
     q = np.asarray(q, dtype=float)
-    return 2.0 * np.arctan2(np.linalg.norm(q[..., 1:], axis=-1), np.abs(q[..., 0]))
+    out: FloatArray = 2.0 * np.arctan2(np.linalg.norm(q[..., 1:], axis=-1), np.abs(q[..., 0]))
+    return out
 
 
 def quat_from_rotvec(r: ArrayLike) -> FloatArray:
