@@ -31,8 +31,8 @@ def _body(raw: bytes | bytearray | memoryview, pos: int = 4) -> tuple[int, int, 
 def read_imu(raw: bytes | bytearray | memoryview) -> tuple[float, int, Vec3, Vec3]:
     """Stamp (s), offset of ``orientation``, angular velocity (rad/s), linear acceleration (m/s²) of an Imu."""
     sec, nsec, off = _body(raw)
-    gyr = cast(Vec3, _F3.unpack_from(raw, off + 104))
-    acc = cast(Vec3, _F3.unpack_from(raw, off + 200))
+    gyr = cast(Vec3, _F3.unpack_from(raw, off + ANGULAR_VELOCITY))
+    acc = cast(Vec3, _F3.unpack_from(raw, off + LINEAR_ACCELERATION))
     return sec + nsec * 1e-9, off, gyr, acc
 
 
@@ -40,6 +40,20 @@ def patch_imu(buf: bytearray, off: int, xyzw: tuple[float, float, float, float],
     """Write orientation (x, y, z, w) and orientation_covariance (9) into a serialized Imu at ``off``."""
     _F4.pack_into(buf, off, *xyzw)
     _F9.pack_into(buf, off + 32, *cov)
+
+
+#: Offsets of angular_velocity and linear_acceleration from ``orientation`` (the offset :func:`read_imu` returns):
+#: after 4 + 9 and 4 + 9 + 3 + 9 float64.
+ANGULAR_VELOCITY = 104
+LINEAR_ACCELERATION = 200
+
+
+def patch_imu_vectors(buf: bytearray, off: int, gyr: Vec3 | None, acc: Vec3 | None) -> None:
+    """Overwrite angular_velocity and/or linear_acceleration (None: keep) in a serialized Imu at ``off``."""
+    if gyr is not None:
+        _F3.pack_into(buf, off + ANGULAR_VELOCITY, *gyr)
+    if acc is not None:
+        _F3.pack_into(buf, off + LINEAR_ACCELERATION, *acc)
 
 
 def read_mag(raw: bytes | bytearray | memoryview) -> tuple[float, Vec3]:

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.quaternion import from_xyzw
+from ..errors import CcfError
 from .play import load_messages, play
 
 
@@ -102,7 +103,8 @@ def run_live(bag: Path, rate: float = 4.0, timeout_s: float = 120.0, node_qos: s
         while time.time() < deadline and (node.count_subscribers('imu/data_raw') == 0
                                           or node.count_publishers('imu/data') == 0):
             if proc.poll() is not None:
-                raise RuntimeError(f'ccf_node exited: {proc.stderr.read() if proc.stderr else ""}')
+                detail = (proc.stderr.read() if proc.stderr else '').strip().splitlines()
+                raise CcfError(f'ccf_node exited with code {proc.returncode}' + (f': {detail[-1]}' if detail else ''))
             time.sleep(0.05)
         # Both input topics matched (each on its own): a lost first magnetometer sample changes the initial heading.
         play(node, {'/imu/data_raw': types['/imu/data_raw'], '/imu/mag': types['/imu/mag']}, messages, rate=rate,

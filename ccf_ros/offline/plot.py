@@ -8,6 +8,7 @@ import numpy as np
 
 from ..core.metrics import error_angles
 from ..core.quaternion import quat_to_euler
+from ..errors import CcfError
 
 
 def plot_rpy(
@@ -43,5 +44,9 @@ def plot_rpy(
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    try:
+        fig.savefig(path, dpi=90)
+    except OSError as err:
+        raise CcfError(f'cannot write plot {path}: {err.strerror or err}') from err
+    finally:
+        plt.close(fig)

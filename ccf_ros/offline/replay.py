@@ -29,12 +29,7 @@ from .bagio import (
     typestore,
     unreadable,
 )
-from .fastcdr import LITTLE_ENDIAN_CDR, patch_imu, read_imu, read_mag, vector3_stamped
-
-#: Offsets of angular_velocity and linear_acceleration from orientation in a serialized Imu (as
-#: :func:`~ccf_ros.offline.fastcdr.read_imu` reads them): after 4 + 9 and 4 + 9 + 3 + 9 float64.
-ANGULAR_VELOCITY, LINEAR_ACCELERATION = 104, 200
-pack3 = struct.Struct('<3d').pack_into
+from .fastcdr import LITTLE_ENDIAN_CDR, patch_imu, patch_imu_vectors, read_imu, read_mag, vector3_stamped
 
 
 @dataclass
@@ -191,10 +186,8 @@ def _replay(
                     continue
                 buf = bytearray(msg)
                 patch_imu(buf, off, out.orientation_xyzw, out.covariance)
-                if out.angular_velocity is not None:  # bias_corrected_rate
-                    pack3(buf, off + ANGULAR_VELOCITY, *out.angular_velocity)
-                if out.linear_acceleration is not None:  # remove_gravity_vector
-                    pack3(buf, off + LINEAR_ACCELERATION, *out.linear_acceleration)
+                # bias_corrected_rate / remove_gravity_vector
+                patch_imu_vectors(buf, off, out.angular_velocity, out.linear_acceleration)
                 write(w_imu, t_rec, memoryview(buf))
                 write(w_bias, t_rec, vector3_stamped(msg, off, out.bias))
                 n_out += 1

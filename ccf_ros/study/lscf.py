@@ -22,6 +22,7 @@ import numpy as np
 
 from ..core.metrics import error_angles
 from ..core.quaternion import quat_conj, quat_mul
+from ..errors import CcfError
 from .datasets import Dataset, run_filter
 
 _MAX_RESIDUALS = 4000
@@ -49,8 +50,8 @@ def _rotation_error(q: np.ndarray, q_ref: np.ndarray) -> np.ndarray:
 def _least_squares() -> Any:
     try:
         from scipy.optimize import least_squares
-    except ImportError:  # pragma: no cover - depends on the install
-        raise ValueError('the LSCF fit needs scipy: pip install "ccf_ros[study]"') from None
+    except ImportError as err:  # pragma: no cover - depends on the install
+        raise CcfError('the LSCF fit needs scipy: pip install "ccf_ros[study]" (or run ccf study --no-lscf)') from err
     return least_squares
 
 
