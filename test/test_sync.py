@@ -1,0 +1,444 @@
+"""The node's plain-Python parts without ROS, on deterministic stamps and clocks: the IMU/magnetometer sync
+(ccf_ros.sync), input statistics and diagnostics (ccf_ros.node_support)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from ccf_ros.core import make_filter
+from ccf_ros.engine import ImuEngine
+from ccf_ros.node_support import ERROR, LOSS_WARN_S, OK, WARN, InputStats, diagnostics
+from ccf_ros.sync import HOLD_S, HoldStats, ImuMagSync
+
+P = 0.001  # IMU period, s (1 kHz)
+T0 = 1_700_000_000.0
+
+
+def stamp(k: int) -> float:
+    """Stamp of sample k, computed as the node does (sec + nanosec * 1e-9): the same k gives the same float."""
+    ns = 1_700_000_000 * 10**9 + k * 1_000_000
+    return ns // 10**9 + (ns % 10**9) * 1e-9
+
+
+class Run:
+    """Drives a sync like the node does and records the processing order."""
+
+    def __init__(self, **kw) -> None:
+        self.sync: ImuMagSync[int] = ImuMagSync(**kw)
+        self.done: list[int] = []
+        self.now = 0.0
+        self.held_on_arrival: list[int] = []
+
+    def imu(self, k: int) -> None:
+        if self.sync.on_imu(stamp(k), k, self.now):
+            self.done.append(k)
+        else:
+            self.held_on_arrival.append(k)
+
+    def mag(self, k: int) -> None:
+        self.done.extend(self.sync.on_mag(stamp(k), self.now))
+
+    def tick(self, dt: float = P) -> None:
+        self.now += dt
+        if self.sync.deadline is not None and self.now >= self.sync.deadline:
+            self.done.extend(self.sync.expire(self.now))
+
+
+def test_mag_first_lockstep_never_holds():
+    r = Run()
+    for k in range(200):
+        r.mag(k)
+        r.imu(k)
+        r.tick()
+    assert r.done == list(range(200)) and not r.held_on_arrival
+    st = r.sync.stats()
+    assert st.n_held == 0 and st.lockstep and st.max_ms == 0.0
+
+
+def test_lockstep_with_reversed_delivery_holds_and_releases_in_order():
+    r = Run()
+    # Lock-step learnt from magnetometer-first pairs ...
+    for k in range(5):
+        r.mag(k)
+        r.imu(k)
+        r.tick()
+    assert r.sync.lockstep and not r.held_on_arrival
+    # ... then the IMU overtakes its magnetometer sample, sometimes by two samples.
+    order = []
+    for k in range(5, 205, 4):
+        order += [('imu', k), ('mag', k), ('imu', k + 1), ('imu', k + 2), ('mag', k + 1), ('mag', k + 2),
+                  ('mag', k + 3), ('imu', k + 3)]
+    for topic, k in order:
+        n_done = len(r.done)
+        if topic == 'imu':
+            r.imu(k)
+        else:
+            waiting = [i for i in r.held_on_arrival if i not in r.done]
+            r.mag(k)
+            # A magnetometer sample releases exactly the held samples up to its stamp, in order, nothing later.
+            assert r.done[n_done:] == [i for i in waiting if i <= k]
+        r.now += P / 4
+    assert r.done == list(range(205))
+    # Every IMU sample that overtook its magnetometer sample waited for it; the magnetometer-first ones did not.
+    assert r.held_on_arrival == [k for k in range(5, 205) if (k - 5) % 4 in (0, 1, 2)]
+    st = r.sync.stats()
+    assert st.n_held == len(r.held_on_arrival) and st.n_timeouts == 0 and st.lockstep
+    # Held until its magnetometer sample came: 1, 2 and 2 quarter-periods in each group of four.
+    assert st.max_ms == pytest.approx(2 * P / 4 * 1e3)
+    assert st.mean_ms == pytest.approx(5 / 3 * P / 4 * 1e3)
+
+
+def test_held_sample_is_released_by_its_own_magnetometer_sample():
+    r = Run()
+    for k in range(3):
+        r.mag(k)
+        r.imu(k)
+    r.imu(3)
+    r.imu(4)
+    assert r.held_on_arrival == [3, 4] and r.done == [0, 1, 2]
+    r.mag(3)
+    assert r.done == [0, 1, 2, 3]  # 4 still waits for its own sample
+    r.mag(4)
+    assert r.done == [0, 1, 2, 3, 4] and not r.sync.holding
+
+
+@pytest.mark.parametrize('imu_first', [False, True])
+def test_mag_at_quarter_rate_on_the_same_clock_never_holds_after_start_up(imu_first):
+    r = Run()
+    r.mag(0)
+    r.imu(0)
+    for k in range(1, 400):
+        if k % 4 == 0 and not imu_first:
+            r.mag(k)
+        r.imu(k)
+        if k % 4 == 0 and imu_first:
+            r.mag(k)
+        r.tick()
+    assert r.done == list(range(400)) and not r.sync.lockstep
+    # One match so far could be lock-step: at start-up the next samples wait for the first verdict, once, less than
+    # the magnetometer's period (4 IMU periods); never again.
+    assert r.held_on_arrival == ([1, 2, 3, 4] if imu_first else [1, 2, 3])
+    st = r.sync.stats()
+    assert st.n_held == len(r.held_on_arrival) and st.max_ms == pytest.approx(3 * P * 1e3) and st.n_timeouts == 0
+
+
+@pytest.mark.parametrize('mag_rate', [1000.0, 100.0, 1100.0])
+@pytest.mark.parametrize('offset_s', [0.0004, -0.0007])
+def test_mag_on_its_own_clock_never_holds_after_start_up(mag_rate, offset_s):
+    r = Run()
+    next_mag = T0 - 0.0003
+    r.sync.on_mag(next_mag, r.now)
+    for k in range(500):
+        # Its own clock (phase 0.3 ms, another rate), delivered up to offset_s ahead of / behind the IMU stream.
+        while next_mag + 1 / mag_rate <= stamp(k) + offset_s:
+            next_mag += 1 / mag_rate
+            r.done.extend(r.sync.on_mag(next_mag, r.now))
+        r.imu(k)
+        r.tick()
+    assert r.done == list(range(500)) and not r.sync.lockstep
+    # At start-up the first samples wait for the first verdict: less than one magnetometer period, once.
+    # (Its stamps delivered late by offset_s wait that much longer, plus the IMU period of this simulation.)
+    longest_ms = 1e3 / mag_rate + max(0.0, -offset_s) * 1e3 + P * 1e3
+    assert all(k * P * 1e3 < longest_ms for k in r.held_on_arrival)
+    st = r.sync.stats()
+    assert st.n_held == len(r.held_on_arrival) and st.max_ms <= longest_ms and st.n_timeouts == 0
+
+
+def test_mag_on_its_own_clock_ahead_of_the_first_imu_sample_is_never_waited_for():
+    r = Run()
+    r.done.extend(r.sync.on_mag(stamp(0) + 0.0004, r.now))  # already past the first IMU stamp
+    for k in range(100):
+        r.imu(k)
+        r.done.extend(r.sync.on_mag(stamp(k + 1) + 0.0004, r.now))
+        r.tick()
+    assert r.done == list(range(100)) and not r.held_on_arrival
+
+
+def test_lost_mag_sample_releases_after_the_timeout():
+    r = Run()
+    for k in range(5):
+        r.mag(k)
+        r.imu(k)
+        r.tick()
+    # The magnetometer stops: the next IMU sample waits, the following ones queue behind it (order kept) ...
+    r.imu(5)
+    assert r.held_on_arrival == [5]
+    while r.now < 0.005 + HOLD_S - 1.5 * P:
+        r.tick()
+        assert r.done == list(range(5))
+    r.imu(6)
+    r.imu(7)
+    assert r.held_on_arrival == [5, 6, 7]
+    # ... all are released when the first one has waited HOLD_S, and nothing is held any more.
+    r.tick(2 * P)
+    assert r.done == list(range(8)) and not r.sync.holding and not r.sync.lockstep
+    st = r.sync.stats()
+    assert st.n_held == 3 and st.n_timeouts == 1 and HOLD_S * 1e3 <= st.max_ms <= (HOLD_S + 2 * P) * 1e3
+    for k in range(8, 50):
+        r.imu(k)
+        r.tick()
+    assert r.done == list(range(50)) and r.held_on_arrival == [5, 6, 7]
+
+
+def test_single_lost_mag_sample_is_released_by_the_next_one():
+    r = Run()
+    for k in range(5):
+        r.mag(k)
+        r.imu(k)
+        r.tick()
+    r.imu(5)  # its magnetometer sample is lost
+    r.tick()
+    r.mag(6)
+    r.imu(6)
+    assert r.done == list(range(7)) and r.sync.stats().n_timeouts == 0
+    assert r.sync.stats().max_ms == pytest.approx(P * 1e3)
+
+
+def test_lockstep_behind_the_imu_from_the_start_pairs_every_sample():
+    r = Run()
+    r.imu(0)  # overtook its magnetometer sample: waits for it
+    assert r.held_on_arrival == [0]
+    r.tick()
+    r.mag(0)
+    assert r.done == [0]
+    # One match: lock-step or a slower magnetometer on the same clock? Still start-up: the next sample waits too.
+    r.imu(1)
+    r.tick()
+    r.mag(1)
+    assert r.done == [0, 1] and r.sync.lockstep
+    for k in range(2, 50):
+        r.imu(k)
+        r.tick()
+        r.mag(k)
+    assert r.done == list(range(50)) and r.held_on_arrival == list(range(50))
+    assert r.sync.stats().max_ms == pytest.approx(P * 1e3) and r.sync.stats().n_timeouts == 0
+
+
+def test_slower_magnetometer_behind_the_imu_at_start_up_delays_the_first_samples_once():
+    r = Run()
+    r.imu(0)
+    r.tick()
+    r.mag(0)
+    for k in range(1, 4):
+        r.imu(k)
+        r.tick()
+    assert r.done == [0] and r.held_on_arrival == [0, 1, 2, 3]
+    r.mag(4)  # stamps 1-3 have no magnetometer sample: not lock-step, nothing waits any more
+    assert r.done == [0, 1, 2, 3] and not r.sync.holding
+    assert r.sync.stats().max_ms == pytest.approx(3 * P * 1e3)  # less than the magnetometer's period
+    for k in range(4, 400):
+        if k % 4 == 0 and k > 4:
+            r.mag(k)
+        r.imu(k)
+        r.tick()
+    assert r.done == list(range(400)) and r.held_on_arrival == [0, 1, 2, 3]
+
+
+def test_magnetometer_on_its_own_clock_behind_the_imu_at_start_up_releases_at_its_first_later_sample():
+    r = Run()
+    r.imu(0)
+    r.tick()
+    r.done.extend(r.sync.on_mag(stamp(0) - 0.0004, r.now))  # older than the IMU sample: no verdict yet
+    r.imu(1)
+    assert r.done == [] and r.held_on_arrival == [0, 1]
+    r.tick()
+    r.done.extend(r.sync.on_mag(stamp(1) - 0.0004, r.now))  # past stamp 0 without its sample: not lock-step
+    assert r.done == [0, 1] and not r.sync.holding
+    for k in range(2, 100):
+        r.done.extend(r.sync.on_mag(stamp(k) - 0.0004, r.now))
+        r.imu(k)
+        r.tick()
+    assert r.done == list(range(100)) and r.held_on_arrival == [0, 1]
+
+
+def test_magnetometer_back_after_it_stopped_in_lockstep_pairs_from_its_first_sample():
+    r = Run()
+    for k in range(5):
+        r.mag(k)
+        r.imu(k)
+        r.tick()
+    for k in range(5, 40):  # it stops: one timeout, then nothing waits
+        r.imu(k)
+        r.tick()
+    assert r.done == list(range(40)) and r.sync.stats().n_timeouts == 1 and r.held_on_arrival == list(range(5, 25))
+    # Back, first sample before its IMU sample, the next ones after theirs: each of those waits for its own.
+    r.mag(40)
+    r.imu(40)
+    for k in range(41, 60):
+        r.imu(k)
+        r.tick()
+        r.mag(k)
+    assert r.done == list(range(60)) and r.held_on_arrival[20:] == list(range(41, 60)) and r.sync.lockstep
+
+
+def test_single_lost_mag_sample_in_lockstep_keeps_pairing_behind_the_imu():
+    r = Run()
+    for k in range(5):
+        r.imu(k)
+        r.mag(k)
+    r.imu(5)  # its magnetometer sample is lost
+    r.imu(6)
+    r.mag(6)
+    assert r.done == list(range(7))
+    r.imu(7)  # one match since the loss: still waits (undecided), not processed with sample 6's field
+    assert r.held_on_arrival[-1] == 7
+    r.mag(7)
+    r.imu(8)
+    r.mag(8)
+    assert r.done == list(range(9)) and r.held_on_arrival == list(range(9)) and r.sync.lockstep
+
+
+def test_first_imu_sample_waits_for_the_first_magnetometer_sample():
+    r = Run()
+    r.imu(0)  # overtook its magnetometer sample
+    assert r.held_on_arrival == [0]
+    r.tick()
+    r.mag(0)
+    assert r.done == [0]
+    # Without any magnetometer the first sample waits once, at most HOLD_S.
+    r2 = Run()
+    for k in range(40):
+        r2.imu(k)
+        r2.tick()
+    assert r2.done == list(range(40)) and r2.sync.stats().n_timeouts == 1
+    assert max(r2.held_on_arrival) < HOLD_S / P + 2
+
+
+def test_disabled_never_holds():
+    r = Run(enabled=False)
+    for k in range(10):
+        r.imu(k)
+        r.mag(k)
+    assert r.done == list(range(10)) and not r.held_on_arrival
+
+
+def test_reset_forgets_lockstep_and_flush_releases_in_order():
+    r = Run()
+    for k in range(5):
+        r.mag(k)
+        r.imu(k)
+    r.imu(5)
+    r.imu(6)
+    assert r.sync.holding and r.sync.lockstep and len(r.sync) == 2
+    r.done.extend(r.sync.flush(r.now))
+    assert r.done == list(range(7))
+    r.sync.reset()
+    assert not r.sync.lockstep and not r.sync.holding and r.sync.stats().n_held == 2
+    # After a reset the first sample waits for a magnetometer sample again; lock-step is learnt again.
+    r.imu(7)
+    assert r.held_on_arrival[-1] == 7
+    r.mag(7)
+    r.mag(8)
+    r.imu(8)
+    r.imu(9)  # two matches in a row: lock-step, so 9 waits for its sample
+    assert r.done == list(range(9)) and r.held_on_arrival[-1] == 9
+    r.sync.reset_stats()
+    assert r.sync.stats().n_held == 0
+
+
+def test_invalid_arguments():
+    with pytest.raises(ValueError, match='hold_s'):
+        ImuMagSync(hold_s=0.0)
+    with pytest.raises(ValueError, match='lockstep_after'):
+        ImuMagSync(lockstep_after=0)
+
+
+# --- node_support ------------------------------------------------------------------------------------------------
+
+
+def test_input_stats_rate_and_messages_lost_from_stamp_holes():
+    st = InputStats()
+    now = 100.0
+    k = 0
+    for _ in range(1000):
+        st.on_imu(stamp(k), now)
+        k += 1
+        if k == 500:
+            k += 3  # three messages lost upstream
+        now += P
+    assert st.n_lost == 3 and st.n_imu == 1000 and st.last_loss == pytest.approx(100.0 + 500 * P)
+    assert st.period_s == pytest.approx(P, rel=1e-3)
+    assert st.rate_hz(now) == pytest.approx(1000.0, rel=1e-3)
+    assert st.rate_hz(now + 5.0) == 0.0
+    # A backward stamp and a repeated one are not holes; a jump of more than 1 s is not counted as losses.
+    st.on_imu(stamp(k - 10), now)
+    st.on_imu(stamp(k - 10), now)
+    st.on_imu(stamp(k + 5000), now)
+    assert st.n_lost == 3
+
+
+def _engine(samples=400, mag=True, acc=9.81):
+    eng = ImuEngine(make_filter())
+    for k in range(samples):
+        t = stamp(k)
+        if mag:
+            eng.on_mag(t, (0.0, 2e-5, -4e-5))
+        eng.on_imu(t, (0.0, 0.0, 0.0), (0.0, 0.0, acc))
+    return eng
+
+
+NO_HOLDS = HoldStats(0, 0, 0.0, 0.0, False)
+
+
+def _diag(stats, eng, now, hold=NO_HOLDS, use_mag=True):
+    return diagnostics(now, stats, eng, hold, use_mag=use_mag, mag_timeout_s=0.5)
+
+
+def test_diagnostics_levels_in_order_of_severity():
+    st = InputStats()
+    eng = _engine()
+    d = _diag(st, eng, 10.0)
+    assert d.level == ERROR and 'no IMU input' in d.message
+    assert d.values['magnetometer age (s)'] == 'never' and d.values['input rate (Hz)'] == '0.0'
+    st.on_imu(stamp(0), 10.0)
+    d = _diag(st, _engine(acc=0.0), 10.1)
+    assert d.level == ERROR and 'accelerometer' in d.message and d.values['initialized'] == 'false'
+    d = _diag(st, eng, 10.1)
+    assert d.level == WARN and d.message == 'no magnetometer sample yet: heading runs on the gyro'
+    assert _diag(st, eng, 10.1, use_mag=False).level == OK
+    st.on_mag(10.0)
+    d = _diag(st, eng, 10.1)
+    assert (d.level, d.message) == (OK, 'ok')
+    assert d.values['magnetometer age (s)'] == '0.10'
+    d = _diag(st, eng, 10.7)
+    assert d.level == WARN and 'no magnetometer for 0.7 s' in d.message
+    st.on_mag(10.7)
+    eng.filter.mag_disturbed = True
+    d = _diag(st, eng, 10.75)
+    assert d.level == WARN and 'magnetic disturbance' in d.message and d.values['magnetic disturbance'] == 'true'
+    eng.filter.mag_disturbed = False
+    eng.filter.n_nonfinite_resets = 2
+    d = _diag(st, eng, 10.75)
+    assert d.level == WARN and 'non-finite 2 times' in d.message and d.values['non-finite state resets'] == '2'
+    eng.filter.n_nonfinite_resets = 0
+    st.on_imu(stamp(1), 10.75)
+    st.on_imu(stamp(2), 10.75)
+    st.on_imu(stamp(5), 10.76)  # two lost
+    d = _diag(st, eng, 10.76)
+    assert d.level == WARN and '(2 so far)' in d.message and d.values['messages lost upstream (estimated)'] == '2'
+    # Losses warn for LOSS_WARN_S, the count stays.
+    st.on_imu(stamp(6), 10.76 + LOSS_WARN_S + 0.5)
+    st.on_mag(10.76 + LOSS_WARN_S + 0.5)
+    d = _diag(st, eng, 10.76 + LOSS_WARN_S + 0.6)
+    assert d.level == OK and d.values['messages lost upstream (estimated)'] == '2'
+
+
+def test_diagnostics_values_show_filter_flags_counters_and_hold_statistics():
+    st = InputStats()
+    eng = _engine()
+    eng.on_imu(stamp(100), (math.nan, 0.0, 0.0), (0.0, 0.0, 9.81))  # cannot advance the filter
+    st.on_imu(stamp(400), 20.0)
+    st.on_mag(20.0)
+    flags = eng.filter.flags
+    d = _diag(st, eng, 20.0, hold=HoldStats(12, 1, 20.4, 1.25, True))
+    v = d.values
+    assert (v['initialized'], v['at rest'], v['accelerometer used'], v['magnetometer used'], v['magnetic disturbance'],
+            v['heading absolute']) == tuple('true' if f else 'false' for f in flags)
+    assert flags.initialized and flags.mag_used and flags.heading_absolute
+    assert v['samples in'] == '401' and v['samples answered'] == '401' and v['skipped: skipped_bad_gyro'] == '1'
+    assert (v['samples held for magnetometer'], v['hold timeouts'], v['hold max (ms)'], v['hold mean (ms)'],
+            v['magnetometer in lock-step']) == ('12', '1', '20.40', '1.250', 'true')
+    assert v['magnetometer samples in'] == '1' and v['non-finite state resets'] == '0'
+    assert float(v['gyro bias norm (deg/s)']) >= 0.0
