@@ -3,13 +3,21 @@
 Subscribes ``imu/data_raw`` (sensor_msgs/Imu) and ``imu/mag`` (sensor_msgs/MagneticField); publishes ``imu/data``
 (input Imu with orientation and covariance), ``imu/gyro_bias`` (Vector3Stamped, rad/s), optionally ``imu/rpy``
 (Vector3Stamped, rad), and ``/diagnostics``. Service ``~/reset`` (std_srvs/Trigger).
+
+This module keeps only what needs ROS: callbacks, message conversion, publishers and parameters. The IMU/magnetometer
+delivery order is :mod:`ccf_ros.sync`, input statistics and diagnostics rules are :mod:`ccf_ros.node_support`.
+
+Messages are taken serialized (``raw=True``): stamp, rate and specific force are read from the little-endian CDR
+bytes, the output is the input's bytes with orientation and covariance patched in, and the gyro-bias message is the
+input's header bytes plus a vector (:mod:`ccf_ros.offline.fastcdr`). Anything else (big-endian CDR) is deserialized
+and answered as a message. Either way the values are exactly the engine's, as in ``ccf replay``.
 """
 
 from __future__ import annotations
 
 import math
+import struct
 import time
-from collections import deque
 from typing import Any
 
 import rclpy
@@ -21,16 +29,24 @@ from rcl_interfaces.msg import (
     ParameterDescriptor,
     SetParametersResult,
 )
+from rclpy.clock import Clock, ClockType
+from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.publisher import Publisher
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Imu, MagneticField
 from std_srvs.srv import Trigger
 
+from .core.base import ANSWERED_BELOW
 from .core.registry import FILTERS
-from .engine import ImuEngine
+from .engine import ImuEngine, Output
+from .node_support import Diagnostics, InputStats, diagnostics
+from .offline.fastcdr import LITTLE_ENDIAN_CDR, patch_imu, read_imu, read_mag, vector3_stamped
 from .settings import DESCRIPTIONS, all_defaults, build
+from .sync import HOLD_S, ImuMagSync
 
 #: Parameters that only make sense at start-up.
 READ_ONLY = {'qos_reliability', 'qos_depth'}
@@ -45,6 +61,42 @@ _RANGES: dict[str, tuple[float, float]] = {
     'orientation_stddev': (0.0, math.pi),
     'gyro_bias_rate_hz': (0.0, 100000.0),
 }
+
+
+#: Depth of the output publishers (reliable, volatile: the rclpy defaults).
+OUTPUT_DEPTH = 10
+
+
+def input_qos(reliability: str, depth: int) -> QoSProfile:
+    """The input QoS: keep-last ``depth``, ``best_effort`` or ``reliable``, sensor-data durability (volatile)."""
+    if reliability not in ('best_effort', 'reliable'):
+        raise ValueError(f'qos_reliability must be best_effort or reliable, got {reliability!r}')
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=depth,
+        reliability=ReliabilityPolicy.BEST_EFFORT if reliability == 'best_effort' else ReliabilityPolicy.RELIABLE,
+        durability=qos_profile_sensor_data.durability,
+    )
+
+
+Vec3 = tuple[float, float, float]
+_F3 = struct.Struct('<3d')
+#: Offsets of angular_velocity and linear_acceleration from orientation in a serialized Imu (after 4 + 9 float64,
+#: and 4 + 9 + 3 + 9 float64), as :func:`ccf_ros.offline.fastcdr.read_imu` reads them.
+ANGULAR_VELOCITY, LINEAR_ACCELERATION = 104, 200
+#: A held IMU sample: stamp, serialized bytes (or the deserialized message, then offset -1), orientation offset,
+#: rate, specific force.
+Held = tuple[float, bytes | Imu, int, Vec3, Vec3]
+
+
+def _rpy(xyzw: tuple[float, float, float, float]) -> Vec3:
+    """Roll, pitch, yaw (rad) of an orientation in message order."""
+    x, y, z, w = xyzw
+    return (
+        math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y)),
+        math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x)))),
+        math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)),
+    )
 
 
 def _descriptor(name: str, default: Any) -> ParameterDescriptor:
@@ -70,6 +122,11 @@ def _descriptor(name: str, default: Any) -> ParameterDescriptor:
 class CcfNode(Node):
     """The orientation filter node; all filtering is done by the shared engine, exactly as ``ccf replay`` does."""
 
+    #: Longest wait (s) of an IMU sample for its same-stamp magnetometer sample (see :mod:`ccf_ros.sync`).
+    HOLD_S = HOLD_S
+    #: Period of /diagnostics, s.
+    DIAGNOSTICS_PERIOD_S = 1.0
+
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('ccf_node', **kwargs)
         for name, default in all_defaults().items():
@@ -80,44 +137,33 @@ class CcfNode(Node):
         # Invalid start-up values: say which and stop, rather than run with something else.
         filt, adapter = build(self._filter_settings(self._settings), strict=False)
         self.engine = ImuEngine(filt, adapter)
+        self.sync: ImuMagSync[Held] = ImuMagSync(self.HOLD_S)
+        self.stats = InputStats()
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
 
-        reliability = str(self._settings['qos_reliability'])
-        if reliability not in ('best_effort', 'reliable'):
-            raise ValueError(f'qos_reliability must be best_effort or reliable, got {reliability!r}')
-        qos = QoSProfile(
-            history=HistoryPolicy.KEEP_LAST,
-            depth=int(self._settings['qos_depth']),
-            reliability=ReliabilityPolicy.BEST_EFFORT if reliability == 'best_effort' else ReliabilityPolicy.RELIABLE,
-            durability=qos_profile_sensor_data.durability,
-        )
-        self.pub_imu = self.create_publisher(Imu, 'imu/data', 10)
-        self.pub_bias = self.create_publisher(Vector3Stamped, 'imu/gyro_bias', 10)
-        self.pub_rpy = self.create_publisher(Vector3Stamped, 'imu/rpy', 10)
-        self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        # Every entity is in the executor's wait set, rebuilt in Python for every message: the node has few. The
+        # secondary publishers go without rclpy's default QoS-event handlers (two waitables each, which only log),
+        # imu/rpy exists only when asked for, and one timer serves diagnostics and held samples.
+        quiet = PublisherEventCallbacks(use_default_callbacks=False)
+        qos = input_qos(str(self._settings['qos_reliability']), int(self._settings['qos_depth']))
+        self.pub_imu = self.create_publisher(Imu, 'imu/data', OUTPUT_DEPTH)
+        self.pub_bias = self.create_publisher(Vector3Stamped, 'imu/gyro_bias', OUTPUT_DEPTH, event_callbacks=quiet)
+        self.pub_rpy: Publisher | None = None
+        self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10, event_callbacks=quiet)
+        self._cache_settings()
         # The executor serves ready subscriptions in creation order: magnetometer first, so that a magnetometer
         # sample and the IMU sample with the same stamp pair as they do in `ccf replay` (bag order).
-        self.sub_mag = self.create_subscription(MagneticField, 'imu/mag', self._on_mag, qos)
-        self.sub_imu = self.create_subscription(Imu, 'imu/data_raw', self._on_imu, qos)
+        self.sub_mag = self.create_subscription(MagneticField, 'imu/mag', self._on_mag_raw, qos, raw=True)
+        self.sub_imu = self.create_subscription(Imu, 'imu/data_raw', self._on_imu_raw, qos, raw=True)
         self.srv_reset = self.create_service(Trigger, '~/reset', self._on_reset)
-        self.timer_diag = self.create_timer(1.0, self._publish_diagnostics)
+        self._last_diag = time.monotonic()
+        # A steady clock: held samples and diagnostics keep their pace with use_sim_time too.
+        self.timer = self.create_timer(self.DIAGNOSTICS_PERIOD_S, self._on_timer,
+                                       clock=Clock(clock_type=ClockType.STEADY_TIME))
 
-        self._bias_msg = Vector3Stamped()
-        self._rpy_msg = Vector3Stamped()
-        self._arrivals: deque[float] = deque(maxlen=2048)
-        self._last_stamp = -math.inf
         self._last_bias_t = -math.inf
-        self._last_mag_t = -math.inf
-        # Both -inf: the first IMU sample counts as "synced", so it waits (at most HOLD_S, once) for a magnetometer
-        # sample to initialise the heading from, as replay does when the magnetometer comes first in the bag.
-        self._last_imu_t = -math.inf
-        self._held: deque[tuple[float, Imu, float]] = deque()
-        self.timer_hold = self.create_timer(self.HOLD_S, self._flush_held)
-        self._period_s = 0.0
-        self._n_gaps_lost = 0
         self._last_warn = 0.0
-        self._last_mag_wall = -math.inf
         self.get_logger().info(
             f'ccf_node: filter={self._settings["filter"]} formulation={self._settings["formulation"]} '
             f'world_frame={self._settings["world_frame"]} use_mag={self._settings["use_mag"]}, '
@@ -127,6 +173,19 @@ class CcfNode(Node):
     @staticmethod
     def _filter_settings(settings: dict[str, Any]) -> dict[str, Any]:
         return {k: v for k, v in settings.items() if k not in READ_ONLY and k != 'publish_debug_topics'}
+
+    def _cache_settings(self) -> None:
+        """Settings read per message, as attributes (a dict lookup per message is measurable)."""
+        rate = float(self._settings['gyro_bias_rate_hz'])
+        self._bias_period = 1.0 / rate if rate > 0.0 else 0.0
+        self._debug = bool(self._settings['publish_debug_topics'])
+        use_mag = bool(self._settings['use_mag'])
+        if use_mag and not self.sync.enabled:
+            self.sync.reset()  # switched on: learn the magnetometer's timing from scratch
+        self.sync.enabled = use_mag
+        if self._debug and self.pub_rpy is None:
+            self.pub_rpy = self.create_publisher(Vector3Stamped, 'imu/rpy', OUTPUT_DEPTH,
+                                                 event_callbacks=PublisherEventCallbacks(use_default_callbacks=False))
 
     # --- parameters -------------------------------------------------------------------------------------------
     def _validate_parameters(self, params: list[Parameter]) -> SetParametersResult:
@@ -153,87 +212,137 @@ class CcfNode(Node):
             self.engine.filter = filt
             self.get_logger().info(f'filter changed to {type(filt).__name__}: restarting the estimate')
         self.engine.set_settings(adapter)
+        self._cache_settings()
+        if not self.sync.enabled:
+            self._answer_all(self.sync.flush(time.monotonic()))
         changed = {k: v for k, v in self._settings.items() if old.get(k) != v}
         self.get_logger().info(f'parameters applied: {changed}')
 
     # --- data ---------------------------------------------------------------------------------------------------
-    # IMU and magnetometer come on two topics, and DDS does not order delivery across topics. When the
-    # magnetometer carries the IMU's stamps (a 9-axis driver), IMU samples whose magnetometer sample has not
-    # arrived yet are held, in order, until it does or HOLD_S pass: pairing then matches `ccf replay` (bag order)
-    # instead of using an older magnetometer sample. Nothing is held for a magnetometer on its own clock.
-    HOLD_S = 0.02
-
-    def _on_mag(self, msg: MagneticField) -> None:
-        s = msg.header.stamp
-        t = s.sec + s.nanosec * 1e-9
-        f = msg.magnetic_field
-        self.engine.on_mag(t, (f.x, f.y, f.z))
-        self._last_mag_wall = time.monotonic()
-        if t > self._last_mag_t:
-            self._last_mag_t = t
-        held = self._held
-        while held and held[0][0] <= t:
-            t_imu, imu, _ = held.popleft()
-            self._process_imu(t_imu, imu)
-
-    def _on_imu(self, msg: Imu) -> None:
-        s = msg.header.stamp
-        t = s.sec + s.nanosec * 1e-9
-        self._arrivals.append(time.monotonic())
-        # Same-stamp magnetometer seen for the previous sample: this one's is expected too.
-        synced = self._last_mag_t == self._last_imu_t
-        self._last_imu_t = t
-        if self._held or (synced and self._last_mag_t < t and self._settings['use_mag']):
-            self._held.append((t, msg, time.monotonic()))
+    def _on_mag_raw(self, data: bytes) -> None:
+        try:
+            if data[:2] == LITTLE_ENDIAN_CDR:
+                t, field = read_mag(data)
+            else:
+                msg = deserialize_message(data, MagneticField)
+                s, f = msg.header.stamp, msg.magnetic_field
+                t, field = s.sec + s.nanosec * 1e-9, (f.x, f.y, f.z)
+        except Exception as err:  # a truncated or foreign payload must not stop the node
+            self.stats.n_unreadable += 1
+            self._warn_throttled(f'unreadable magnetometer message ({len(data)} bytes) dropped: {err}')
             return
-        self._process_imu(t, msg)
-
-    def _flush_held(self) -> None:
-        """Timer: release samples held longer than HOLD_S (their magnetometer sample is lost or late)."""
-        held = self._held
         now = time.monotonic()
-        while held and now - held[0][2] >= self.HOLD_S:
-            t_imu, imu, _ = held.popleft()
-            self._process_imu(t_imu, imu)
+        self.engine.on_mag(t, field)
+        self.stats.on_mag(now)
+        released = self.sync.on_mag(t, now)
+        if released:
+            self._answer_all(released)
 
-    def _process_imu(self, t: float, msg: Imu) -> None:
-        self._track_gaps(t)
-        g = msg.angular_velocity
-        a = msg.linear_acceleration
-        out = self.engine.on_imu(t, (g.x, g.y, g.z), (a.x, a.y, a.z))
-        if out is None:
-            self._warn_throttled(f'sample at t={t:.6f} s skipped; skipped so far: {self.engine.skipped_by_reason()}')
+    def _on_imu_raw(self, data: bytes) -> None:
+        now = time.monotonic()
+        try:
+            if data[:2] == LITTLE_ENDIAN_CDR:
+                t, off, gyr, acc = read_imu(data)
+                if len(data) < off + LINEAR_ACCELERATION + 96:
+                    raise ValueError('too short for an Imu')
+                item: Held = (t, data, off, gyr, acc)
+            else:
+                # Big-endian (or otherwise unusual) CDR: deserialize, answer with a message.
+                msg = deserialize_message(data, Imu)
+                s, g, a = msg.header.stamp, msg.angular_velocity, msg.linear_acceleration
+                t = s.sec + s.nanosec * 1e-9
+                item = (t, msg, -1, (g.x, g.y, g.z), (a.x, a.y, a.z))
+        except Exception as err:  # a truncated or foreign payload must not stop the node
+            self.stats.n_unreadable += 1
+            self._warn_throttled(f'unreadable IMU message ({len(data)} bytes) dropped: {err}')
             return
+        self.stats.on_imu(t, now)
+        sync = self.sync
+        if sync.on_imu(t, item, now):
+            self._answer(*item)
+        elif len(sync) == 1:
+            self._arm_timer()
+
+    def _arm_timer(self) -> None:
+        """A first sample is held: make the timer fire by its deadline (HOLD_S from now), unless it fires sooner."""
+        timer = self.timer
+        if timer.time_until_next_call() > self.HOLD_S * 1e9:
+            timer.timer_period_ns = round(self.HOLD_S * 1e9)
+            timer.reset()
+
+    def _on_timer(self) -> None:
+        """Release held samples whose magnetometer sample did not come within HOLD_S (lost, late or none), publish
+        diagnostics once a second, and set the next wake-up: the earlier of the two."""
+        now = time.monotonic()
+        self._answer_all(self.sync.expire(now))
+        if now - self._last_diag >= self.DIAGNOSTICS_PERIOD_S - 0.002:
+            self._last_diag = now
+            self._publish_diagnostics()
+        wake = self._last_diag + self.DIAGNOSTICS_PERIOD_S
+        deadline = self.sync.deadline
+        if deadline is not None:
+            wake = min(wake, deadline)
+        period = round(max(wake - time.monotonic(), 0.001) * 1e9)
+        timer = self.timer
+        if period != timer.timer_period_ns:
+            timer.timer_period_ns = period
+            timer.reset()
+
+    def _answer_all(self, items: Any) -> None:
+        for item in items:
+            self._answer(*item)
+
+    def _answer(self, t: float, data: bytes | Imu, off: int, gyr: Vec3, acc: Vec3) -> None:
+        """Run one IMU sample through the engine and publish its answer (same bytes + orientation + covariance)."""
+        out = self.engine.on_imu(t, gyr, acc)
+        if out is None:
+            self._warn_throttled(f'sample at t={t:.6f} s skipped: no orientation yet (no valid accelerometer sample)')
+            return
+        if out.status >= ANSWERED_BELOW:
+            self._warn_throttled(f'sample at t={t:.6f} s could not advance the filter (answered with the current '
+                                 f'orientation); so far: {self.engine.skipped_by_reason()}')
+        if isinstance(data, bytes):
+            buf = bytearray(data)
+            patch_imu(buf, off, out.orientation_xyzw, out.covariance)
+            if out.angular_velocity is not None:
+                _F3.pack_into(buf, off + ANGULAR_VELOCITY, *out.angular_velocity)
+            if out.linear_acceleration is not None:
+                _F3.pack_into(buf, off + LINEAR_ACCELERATION, *out.linear_acceleration)
+            self.pub_imu.publish(bytes(buf))
+            if self._bias_due(t):
+                self.pub_bias.publish(vector3_stamped(data, off, out.bias))
+            if self._debug and self.pub_rpy is not None:
+                self.pub_rpy.publish(vector3_stamped(data, off, _rpy(out.orientation_xyzw)))
+        else:
+            self._answer_msg(t, data, out)
+
+    def _answer_msg(self, t: float, msg: Imu, out: Output) -> None:
+        """The same answer built as messages (input that is not little-endian CDR)."""
         o = msg.orientation
         o.x, o.y, o.z, o.w = out.orientation_xyzw
         msg.orientation_covariance = list(out.covariance)
+        if out.angular_velocity is not None:
+            g = msg.angular_velocity
+            g.x, g.y, g.z = out.angular_velocity
+        if out.linear_acceleration is not None:
+            a = msg.linear_acceleration
+            a.x, a.y, a.z = out.linear_acceleration
         self.pub_imu.publish(msg)
-        rate = self._settings['gyro_bias_rate_hz']
-        if rate <= 0.0 or t - self._last_bias_t >= 1.0 / rate or t < self._last_bias_t:
-            self._last_bias_t = t
-            b = self._bias_msg
-            b.header = msg.header
+        if self._bias_due(t):
+            b = Vector3Stamped(header=msg.header)
             b.vector.x, b.vector.y, b.vector.z = out.bias
             self.pub_bias.publish(b)
-        if self._settings['publish_debug_topics']:
-            x, y, z, w = out.orientation_xyzw
-            r = self._rpy_msg
-            r.header = msg.header
-            r.vector.x = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
-            r.vector.y = math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x))))
-            r.vector.z = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+        if self._debug and self.pub_rpy is not None:
+            r = Vector3Stamped(header=msg.header)
+            r.vector.x, r.vector.y, r.vector.z = _rpy(out.orientation_xyzw)
             self.pub_rpy.publish(r)
 
-    def _track_gaps(self, t: float) -> None:
-        """Estimate messages lost upstream (DDS drops under overload) from holes in the stamp sequence."""
-        dt = t - self._last_stamp
-        if 0.0 < dt < 1.0:
-            # Running estimate of the nominal period; a hole of k periods means k - 1 lost messages.
-            self._period_s = dt if self._period_s == 0.0 else min(self._period_s * 1.001, 0.99 * self._period_s + 0.01 * dt)
-            if dt > 1.5 * self._period_s > 0.0:
-                self._n_gaps_lost += round(dt / self._period_s) - 1
-        if t > self._last_stamp:
-            self._last_stamp = t
+    def _bias_due(self, t: float) -> bool:
+        """imu/gyro_bias at up to gyro_bias_rate_hz (by stamp; a stamp going back publishes at once)."""
+        if t - self._last_bias_t >= self._bias_period or t < self._last_bias_t:
+            self._last_bias_t = t
+            return True
+        return False
 
     def _warn_throttled(self, text: str) -> None:
         now = time.monotonic()
@@ -242,52 +351,31 @@ class CcfNode(Node):
             self.get_logger().warning(text)
 
     def _on_reset(self, _req: Trigger.Request, resp: Trigger.Response) -> Trigger.Response:
-        self._held.clear()
+        # Samples waiting for their magnetometer sample are answered first: they came before the reset.
+        self._answer_all(self.sync.flush(time.monotonic()))
         self.engine.reset()
+        self.sync.reset()
         resp.success = True
         resp.message = 'filter reset; re-initialising from the next sample with a valid accelerometer'
         self.get_logger().info(resp.message)
         return resp
 
     # --- diagnostics --------------------------------------------------------------------------------------------
+    def diagnostics(self) -> Diagnostics:
+        """Level, message and values of the node's status (rules in :func:`ccf_ros.node_support.diagnostics`)."""
+        return diagnostics(time.monotonic(), self.stats, self.engine, self.sync.stats(),
+                           use_mag=bool(self._settings['use_mag']),
+                           mag_timeout_s=float(self._settings['mag_timeout_s']))
+
     def diagnostic_status(self) -> DiagnosticStatus:
-        """Input rate, skipped samples by reason, magnetometer age, bias norm; OK/WARN/ERROR."""
-        now = time.monotonic()
-        arr = [t for t in self._arrivals if now - t <= 2.0]
-        rate = (len(arr) - 1) / (arr[-1] - arr[0]) if len(arr) > 2 and arr[-1] > arr[0] else 0.0
-        mag_age = now - self._last_mag_wall
-        bias = self.engine.filter.gyro_bias
-        bias_deg_s = math.degrees(math.sqrt(sum(b * b for b in bias)))
-        skipped = self.engine.skipped_by_reason()
-        level, message = DiagnosticStatus.OK, 'ok'
-        if not self._arrivals or now - self._arrivals[-1] > 1.0:
-            level, message = DiagnosticStatus.ERROR, 'no IMU input for more than 1 s'
-        elif not self.engine.filter.initialized:
-            level, message = DiagnosticStatus.ERROR, 'waiting for a valid accelerometer sample'
-        elif self._settings['use_mag'] and mag_age > float(self._settings['mag_timeout_s']):
-            level, message = DiagnosticStatus.WARN, f'no magnetometer for {mag_age:.1f} s: heading runs on the gyro'
-        elif getattr(self.engine.filter, 'mag_disturbed', False):
-            level, message = DiagnosticStatus.WARN, 'magnetic disturbance: heading runs on the gyro'
-        elif self._n_gaps_lost:
-            level, message = DiagnosticStatus.WARN, f'{self._n_gaps_lost} input messages lost upstream'
-        values = {
-            'input rate (Hz)': f'{rate:.1f}',
-            'samples in': str(self.engine.n_in),
-            'samples answered': str(self.engine.answered()),
-            'messages lost upstream (estimated)': str(self._n_gaps_lost),
-            'magnetometer age (s)': f'{mag_age:.2f}' if math.isfinite(mag_age) else 'never',
-            'gyro bias norm (deg/s)': f'{bias_deg_s:.3f}',
-            'resets after clock jumps': str(self.engine.n_resets_jump),
-            'gyro-only samples (bad accelerometer)': str(self.engine.n_no_acc),
-            'samples without heading (bad magnetometer)': str(self.engine.n_no_mag),
-        }
-        values.update({f'skipped: {k}': str(v) for k, v in skipped.items()})
+        """The status published on /diagnostics."""
+        d = self.diagnostics()
         return DiagnosticStatus(
-            level=level,
+            level=bytes([d.level]),
             name=f'{self.get_name()}: orientation filter',
-            message=message,
+            message=d.message,
             hardware_id=self.get_fully_qualified_name(),
-            values=[KeyValue(key=k, value=v) for k, v in values.items()],
+            values=[KeyValue(key=k, value=v) for k, v in d.values.items()],
         )
 
     def _publish_diagnostics(self) -> None:

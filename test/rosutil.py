@@ -1,7 +1,8 @@
-"""Helpers for tests that use rclpy: BROAD messages as rclpy messages, a feeder/recorder node."""
+"""Helpers for tests that use rclpy: bag messages as rclpy messages, big-endian CDR."""
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 from ccf_ros.offline.bagio import open_bag
@@ -36,3 +37,22 @@ def read_inputs(bag: Path, stop_s: float) -> list[tuple[str, object]]:
             msg.header.frame_id = m.header.frame_id
             out.append((conn.topic, msg))
     return out
+
+
+@functools.lru_cache(maxsize=1)
+def _typestore():
+    from ccf_ros.offline.bagio import typestore
+
+    return typestore()
+
+
+def big_endian_cdr(msg: object) -> bytes:
+    """``msg`` (an rclpy Imu or MagneticField) serialized as big-endian CDR, as a big-endian host would send it."""
+    from rclpy.serialization import serialize_message
+
+    ts = _typestore()
+    name = 'sensor_msgs/msg/Imu' if type(msg).__name__ == 'Imu' else 'sensor_msgs/msg/MagneticField'
+    little = ts.deserialize_cdr(serialize_message(msg), name)
+    data = bytes(ts.serialize_cdr(little, name, little_endian=False))
+    assert data[:2] == b'\x00\x00'  # CDR_BE
+    return data
