@@ -16,7 +16,6 @@ and answered as a message. Either way the values are exactly the engine's, as in
 from __future__ import annotations
 
 import math
-import struct
 import time
 from typing import Any
 
@@ -44,7 +43,15 @@ from .core.base import ANSWERED_BELOW
 from .core.registry import FILTERS
 from .engine import ImuEngine, Output
 from .node_support import Diagnostics, InputStats, diagnostics
-from .offline.fastcdr import LITTLE_ENDIAN_CDR, patch_imu, read_imu, read_mag, vector3_stamped
+from .offline.fastcdr import (
+    LINEAR_ACCELERATION,
+    LITTLE_ENDIAN_CDR,
+    patch_imu,
+    patch_imu_vectors,
+    read_imu,
+    read_mag,
+    vector3_stamped,
+)
 from .settings import DESCRIPTIONS, all_defaults, build
 from .sync import HOLD_S, ImuMagSync
 
@@ -80,10 +87,8 @@ def input_qos(reliability: str, depth: int) -> QoSProfile:
 
 
 Vec3 = tuple[float, float, float]
-_F3 = struct.Struct('<3d')
-#: Offsets of angular_velocity and linear_acceleration from orientation in a serialized Imu (after 4 + 9 float64,
-#: and 4 + 9 + 3 + 9 float64), as :func:`ccf_ros.offline.fastcdr.read_imu` reads them.
-ANGULAR_VELOCITY, LINEAR_ACCELERATION = 104, 200
+#: Bytes of an Imu from ``orientation`` on: 4 + 9 + 3 + 9 + 3 + 9 float64.
+_IMU_TAIL = LINEAR_ACCELERATION + 96
 #: A held IMU sample: stamp, serialized bytes (or the deserialized message, then offset -1), orientation offset,
 #: rate, specific force.
 Held = tuple[float, bytes | Imu, int, Vec3, Vec3]
@@ -243,7 +248,7 @@ class CcfNode(Node):
         try:
             if data[:2] == LITTLE_ENDIAN_CDR:
                 t, off, gyr, acc = read_imu(data)
-                if len(data) < off + LINEAR_ACCELERATION + 96:
+                if len(data) < off + _IMU_TAIL:
                     raise ValueError('too short for an Imu')
                 item: Held = (t, data, off, gyr, acc)
             else:
@@ -304,10 +309,8 @@ class CcfNode(Node):
         if isinstance(data, bytes):
             buf = bytearray(data)
             patch_imu(buf, off, out.orientation_xyzw, out.covariance)
-            if out.angular_velocity is not None:
-                _F3.pack_into(buf, off + ANGULAR_VELOCITY, *out.angular_velocity)
-            if out.linear_acceleration is not None:
-                _F3.pack_into(buf, off + LINEAR_ACCELERATION, *out.linear_acceleration)
+            if out.angular_velocity is not None or out.linear_acceleration is not None:
+                patch_imu_vectors(buf, off, out.angular_velocity, out.linear_acceleration)
             self.pub_imu.publish(bytes(buf))
             if self._bias_due(t):
                 self.pub_bias.publish(vector3_stamped(data, off, out.bias))
