@@ -74,8 +74,9 @@ class ImuMagSync(Generic[T]):
         enabled: False never holds (no magnetometer in use).
     """
 
-    #: recent stamps remembered per topic (a magnetometer may run a few samples ahead of, or behind, the IMU)
-    WINDOW = 8
+    #: recent stamps remembered per topic (a magnetometer may run ahead of, or behind, the IMU: a node that takes
+    #: queued messages magnetometer first may see a few dozen ahead)
+    WINDOW = 64
 
     def __init__(self, hold_s: float = HOLD_S, lockstep_after: int = LOCKSTEP_AFTER, enabled: bool = True) -> None:
         if not (math.isfinite(hold_s) and hold_s > 0):
@@ -127,7 +128,7 @@ class ImuMagSync(Generic[T]):
         """An IMU sample with stamp ``t`` arrived at ``now``. True: process ``item`` now; False: it is held."""
         if not self.enabled:
             return True
-        if t in self._mag_recent:
+        if t == self._mag_t or t in self._mag_recent:
             self._matched()  # its magnetometer sample came first
         elif t < self._mag_t:
             self._skipped()  # the magnetometer is already past this stamp: no sample of its own

@@ -222,6 +222,22 @@ def test_big_endian_input_is_deserialized_and_answered_the_same(context, inputs,
         h.close()
 
 
+def test_a_burst_is_served_in_one_executor_cycle_magnetometer_first(context, inputs):
+    node = reliable_node(context, gyro_bias_rate_hz=0.0)
+    h = Harness(context, node)
+    try:
+        h.wait_connected()
+        for topic, msg in inputs[:200]:
+            h.publish(topic, msg)
+        h.ex.spin_once(timeout_sec=1.0)  # one callback of the node: it takes what is queued, up to DRAIN_MAX IMU
+        assert node.stats.n_mag == 100 and node.stats.n_imu == node.engine.n_in == node.DRAIN_MAX
+        assert not node.sync.holding and node.sync.lockstep  # the magnetometer samples ahead were recognised
+        assert h.spin_until(lambda: len(h.out) == 100)
+        np.testing.assert_array_equal(_xyzw(h.out), _ref_xyzw(_replay_reference(inputs[:200])))
+    finally:
+        h.close()
+
+
 def test_unreadable_messages_are_dropped_and_the_node_keeps_running(context, inputs):
     node = reliable_node(context)
     h = Harness(context, node)
