@@ -94,7 +94,7 @@ def test_make_filter_rejects_unknown_and_inapplicable_names():
     with pytest.raises(ValueError, match='does not apply'):
         make_filter({'kp': 2.0})
     f = make_filter({'formulation': 'euler', 'kp': '[1, 2, 3]', 'alpha': '0.5'})
-    assert isinstance(f, EulerCcf) and f.params._kp3 == (1.0, 2.0, 3.0)
+    assert isinstance(f, EulerCcf) and f.gains.kp == (1.0, 2.0, 3.0)
 
 
 @pytest.mark.parametrize('frame', ['enu', 'ned', 'nwu'])

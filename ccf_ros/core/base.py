@@ -70,6 +70,31 @@ def check_range(name: str, value: float, lo: float, hi: float) -> None:
         raise ValueError(f'{name} must be in [{lo}, {hi}], got {value!r}')
 
 
+def per_axis(name: str, value: float | Sequence[float], lo: float, hi: float) -> tuple[float, float, float]:
+    """``(roll, pitch, yaw)`` floats from one number or three, each in ``[lo, hi]``; ``ValueError`` naming ``name``."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        vals: tuple[float, ...] = (float(value),) * 3
+    else:
+        vals = floats(name, value, 3, lo, hi, what='a number or 3 numbers (roll, pitch, yaw)')
+    for v in vals:
+        check_range(name, v, lo, hi)
+    return (vals[0], vals[1], vals[2])
+
+
+def floats(name: str, value: object, n: int, lo: float, hi: float, *, what: str = '') -> tuple[float, ...]:
+    """``n`` floats from a sequence, each in ``[lo, hi]``; ``ValueError`` naming ``name`` and the value."""
+    what = what or f'{n} numbers'
+    try:
+        vals = tuple(float(v) for v in value)  # type: ignore[attr-defined]
+    except (TypeError, ValueError):
+        raise ValueError(f'{name} must be {what}, got {value!r}') from None
+    if len(vals) != n or any(isinstance(v, bool) for v in value):  # type: ignore[attr-defined]
+        raise ValueError(f'{name} must be {what}, got {value!r}')
+    for v in vals:
+        check_range(name, v, lo, hi)
+    return vals
+
+
 @dataclass(frozen=True)
 class CommonParams:
     """Parameters every filter shares.

@@ -21,27 +21,13 @@ from the rate ``a s / (s² + a Kp s + a Ki)`` (eq 15). It is singular at ±90° 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
-from .base import CommonParams, OrientationFilter, check_range
+from .base import CommonParams, OrientationFilter, per_axis
 
 _PI = math.pi
 _TWO_PI = 2.0 * math.pi
 _HALF_PI = 0.5 * math.pi
-
-
-def _triple(name: str, value: float | Sequence[float]) -> tuple[float, float, float]:
-    """A per-axis (roll, pitch, yaw) value from a scalar or a 3-sequence."""
-    if isinstance(value, (int, float)) and not isinstance(value, bool):
-        return (float(value),) * 3
-    try:
-        vals = tuple(float(v) for v in value)  # type: ignore[union-attr]
-    except (TypeError, ValueError):
-        raise ValueError(f'{name} must be a number or 3 numbers (roll, pitch, yaw), got {value!r}') from None
-    if len(vals) != 3:
-        raise ValueError(f'{name} must be a number or 3 numbers (roll, pitch, yaw), got {value!r}')
-    return vals
 
 
 @dataclass(frozen=True)
@@ -56,21 +42,11 @@ class NcfParams(CommonParams):
 
     kp: float | tuple[float, float, float] = 25.0
     ki: float | tuple[float, float, float] = 0.1
-    _kp3: tuple[float, float, float] = field(init=False, repr=False, compare=False)
-    _ki3: tuple[float, float, float] = field(init=False, repr=False, compare=False)
-    _alpha3: tuple[float, float, float] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        kp = _triple('kp', self.kp)
-        ki = _triple('ki', self.ki)
-        for name, vals in (('kp', kp), ('ki', ki)):
-            for v in vals:
-                check_range(name, v, 0.0, 1e6)
-        object.__setattr__(self, '_kp3', kp)
-        object.__setattr__(self, '_ki3', ki)
-        # The NCF is the CCF without the LCF blend: alpha = 1.
-        object.__setattr__(self, '_alpha3', (1.0, 1.0, 1.0))
+        per_axis('kp', self.kp, 0.0, 1e6)
+        per_axis('ki', self.ki, 0.0, 1e6)
 
 
 @dataclass(frozen=True)
@@ -87,10 +63,7 @@ class EulerCcfParams(NcfParams):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        alpha = _triple('alpha', self.alpha)
-        for v in alpha:
-            check_range('alpha', v, 0.0, 1.0)
-        object.__setattr__(self, '_alpha3', alpha)
+        per_axis('alpha', self.alpha, 0.0, 1.0)
 
 
 @dataclass(frozen=True)
@@ -103,14 +76,31 @@ class LcfParams(CommonParams):
     """
 
     lcf_alpha: float | tuple[float, float, float] = 0.98
-    _alpha3: tuple[float, float, float] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        alpha = _triple('lcf_alpha', self.lcf_alpha)
-        for v in alpha:
-            check_range('lcf_alpha', v, 0.0, 1.0)
-        object.__setattr__(self, '_alpha3', alpha)
+        per_axis('lcf_alpha', self.lcf_alpha, 0.0, 1.0)
+
+
+@dataclass(frozen=True, slots=True)
+class EulerGains:
+    """Per-axis ``(roll, pitch, yaw)`` gains derived from the Euler filters' parameters.
+
+    Attributes: kp (1/s), ki (1/s²), alpha (per-sample weight of the gyro path; 1 for the NCF, which has no blend).
+    """
+
+    kp: tuple[float, float, float]
+    ki: tuple[float, float, float]
+    alpha: tuple[float, float, float]
+
+    @classmethod
+    def of(cls, p: CommonParams) -> EulerGains:
+        if isinstance(p, LcfParams):
+            return cls((0.0,) * 3, (0.0,) * 3, per_axis('lcf_alpha', p.lcf_alpha, 0.0, 1.0))
+        if not isinstance(p, NcfParams):
+            raise ValueError(f'no Euler gains in {type(p).__name__}')
+        alpha = per_axis('alpha', p.alpha, 0.0, 1.0) if isinstance(p, EulerCcfParams) else (1.0, 1.0, 1.0)
+        return cls(per_axis('kp', p.kp, 0.0, 1e6), per_axis('ki', p.ki, 0.0, 1e6), alpha)
 
 
 def euler_rates(phi: float, theta: float, p: float, q: float, r: float) -> tuple[float, float, float]:
@@ -170,11 +160,20 @@ class EulerCcf(OrientationFilter):
     """The paper's CCF per Euler axis (see module docstring). State: angles, own integrator, integral term."""
 
     name = 'ccf_euler'
-    __slots__ = ('_i', '_x', '_xg')
+    __slots__ = ('_gains', '_i', '_x', '_xg')
     params: NcfParams
 
     def __init__(self, params: NcfParams | None = None) -> None:
         super().__init__(params if params is not None else EulerCcfParams())
+
+    def _apply_params(self, params: CommonParams) -> None:
+        super()._apply_params(params)
+        self._gains = EulerGains.of(params)
+
+    @property
+    def gains(self) -> EulerGains:
+        """The per-axis gains in use (read-only)."""
+        return self._gains
 
     def _reset_state(self) -> None:
         self._x = [0.0, 0.0, 0.0]
@@ -207,8 +206,8 @@ class EulerCcf(OrientationFilter):
     ) -> None:
         x = self._x
         rates = euler_rates(x[0], x[1], gx, gy, gz)
-        p = self.params
-        kp, ki, alpha = p._kp3, p._ki3, p._alpha3
+        g = self._gains
+        kp, ki, alpha = g.kp, g.ki, g.alpha
         if acc_n2:
             xa = acc_mag_euler(ax, ay, az, mx, my, mz, mag_n2 != 0.0, x[2])
         for i in range(3):
@@ -266,11 +265,15 @@ class Lcf(OrientationFilter):
     """
 
     name = 'lcf'
-    __slots__ = ('_x',)
+    __slots__ = ('_alpha', '_x')
     params: LcfParams
 
     def __init__(self, params: LcfParams | None = None) -> None:
         super().__init__(params if params is not None else LcfParams())
+
+    def _apply_params(self, params: CommonParams) -> None:
+        super()._apply_params(params)
+        self._alpha = EulerGains.of(params).alpha
 
     def _reset_state(self) -> None:
         self._x = [0.0, 0.0, 0.0]
@@ -285,7 +288,7 @@ class Lcf(OrientationFilter):
     ) -> None:
         x = self._x
         rates = euler_rates(x[0], x[1], gx, gy, gz)
-        alpha = self.params._alpha3
+        alpha = self._alpha
         if acc_n2:
             xa = acc_mag_euler(ax, ay, az, mx, my, mz, mag_n2 != 0.0, x[2])
         for i in range(3):

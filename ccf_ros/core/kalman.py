@@ -16,28 +16,15 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from operator import mul as _mul
 
-from .base import CommonParams, OrientationFilter, check_range
+from .base import CommonParams, OrientationFilter, check_range, floats
 from .euler_ccf import acc_mag_euler, euler_quat, wrap_euler
 
 _PI = math.pi
 _TWO_PI = 2.0 * math.pi
 Matrix = list[list[float]]
-
-
-def _floats(name: str, value: Sequence[float], n: int) -> tuple[float, ...]:
-    """``n`` non-negative finite floats from ``value`` or ``ValueError`` naming ``name``."""
-    try:
-        vals = tuple(float(v) for v in value)
-    except (TypeError, ValueError):
-        raise ValueError(f'{name} must be {n} numbers, got {value!r}') from None
-    if len(vals) != n:
-        raise ValueError(f'{name} must be {n} numbers, got {value!r}')
-    for v in vals:
-        check_range(name, v, 0.0, 1e9)
-    return vals
 
 
 @dataclass(frozen=True)
@@ -55,10 +42,8 @@ class EkfParams(CommonParams):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        object.__setattr__(self, 'ekf_q', _floats('ekf_q', self.ekf_q, 3))
-        object.__setattr__(self, 'ekf_r', _floats('ekf_r', self.ekf_r, 3))
-        if min(self.ekf_r) <= 0.0:
-            raise ValueError(f'ekf_r must be > 0, got {self.ekf_r!r}')
+        floats('ekf_q', self.ekf_q, 3, 0.0, 1e9)
+        floats('ekf_r', self.ekf_r, 3, 1e-300, 1e9)
 
 
 @dataclass(frozen=True)
@@ -76,16 +61,34 @@ class CkfParams(CommonParams):
     ckf_q: tuple[float, float, float, float, float, float] = (60.0, 5.0, 10.0, 0.0, 0.0, 0.0)
     ckf_r: tuple[float, float, float] = (0.1, 0.01, 0.8)
     ckf_bias0_rad_s: float = 2.0 * math.pi / 180.0
-    _p0: tuple[float, ...] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        object.__setattr__(self, 'ckf_q', _floats('ckf_q', self.ckf_q, 6))
-        object.__setattr__(self, 'ckf_r', _floats('ckf_r', self.ckf_r, 3))
-        if min(self.ckf_r) <= 0.0:
-            raise ValueError(f'ckf_r must be > 0, got {self.ckf_r!r}')
+        floats('ckf_q', self.ckf_q, 6, 0.0, 1e9)
+        floats('ckf_r', self.ckf_r, 3, 1e-300, 1e9)
         check_range('ckf_bias0_rad_s', self.ckf_bias0_rad_s, 0.0, 1.0)
-        object.__setattr__(self, '_p0', self.ckf_r + (self.ckf_bias0_rad_s**2,) * 3)
+
+
+@dataclass(frozen=True, slots=True)
+class KalmanNoise:
+    """Noise figures derived from :class:`EkfParams` / :class:`CkfParams` as float tuples.
+
+    Attributes: q process-noise density (per second); r measurement variance, rad²; p0 covariance to (re)start from.
+    """
+
+    q: tuple[float, ...]
+    r: tuple[float, ...]
+    p0: tuple[float, ...]
+
+    @classmethod
+    def of(cls, p: CommonParams) -> KalmanNoise:
+        if isinstance(p, CkfParams):
+            r = floats('ckf_r', p.ckf_r, 3, 1e-300, 1e9)
+            return cls(floats('ckf_q', p.ckf_q, 6, 0.0, 1e9), r, r + (p.ckf_bias0_rad_s**2,) * 3)
+        if isinstance(p, EkfParams):
+            r = floats('ekf_r', p.ekf_r, 3, 1e-300, 1e9)
+            return cls(floats('ekf_q', p.ekf_q, 3, 0.0, 1e9), r, r)
+        raise ValueError(f'no Kalman noise in {type(p).__name__}')
 
 
 def _kinematics(
@@ -188,9 +191,18 @@ _VARIANCE_FLOOR = 1e-12
 class _EulerKalman(OrientationFilter):
     """Shared Kalman step: covariance propagation, measurement update, publication of the angles ``_x``."""
 
-    __slots__ = ('_p', '_x')
+    __slots__ = ('_noise', '_p', '_x')
     _p: Matrix  # covariance, rad² (and rad²/s, rad²/s² for the CKF's bias part)
     _x: list[float]  # roll, pitch, yaw, rad
+
+    def _apply_params(self, params: CommonParams) -> None:
+        super()._apply_params(params)
+        self._noise = KalmanNoise.of(params)
+
+    @property
+    def noise(self) -> KalmanNoise:
+        """The noise figures in use (read-only)."""
+        return self._noise
 
     def _predict_correct(
         self, phi: Matrix, q: Sequence[float], r: Sequence[float], p_reset: Sequence[float], dt: float,
@@ -234,7 +246,7 @@ class Ekf(_EulerKalman):
 
     def _init(self, ax: float, ay: float, az: float, mx: float, my: float, mz: float, mag_ok: bool) -> None:
         self._x = list(acc_mag_euler(ax, ay, az, mx, my, mz, mag_ok, 0.0))
-        self._p = _diagonal(self.params.ekf_r)
+        self._p = _diagonal(self._noise.p0)
         self._q = euler_quat(*self._x)
 
     def _step(
@@ -246,8 +258,8 @@ class Ekf(_EulerKalman):
         for i in range(3):
             x[i] += rates[i] * dt
         f = [[(1.0 if i == j else 0.0) + jac[i][j] * dt for j in range(3)] for i in range(3)]
-        p = self.params
-        dx = self._predict_correct(f, p.ekf_q, p.ekf_r, p.ekf_r, dt, ax, ay, az, acc_n2, mx, my, mz, mag_n2)
+        n = self._noise
+        dx = self._predict_correct(f, n.q, n.r, n.p0, dt, ax, ay, az, acc_n2, mx, my, mz, mag_n2)
         if dx is not None:
             for i in range(3):
                 x[i] += dx[i]
@@ -277,7 +289,7 @@ class Ckf(_EulerKalman):
 
     def _init(self, ax: float, ay: float, az: float, mx: float, my: float, mz: float, mag_ok: bool) -> None:
         self._x = list(acc_mag_euler(ax, ay, az, mx, my, mz, mag_ok, 0.0))
-        p0 = self.params._p0
+        p0 = self._noise.p0
         # A re-initialisation keeps the learnt bias and its uncertainty, as a gap says nothing about the bias.
         if not self.initialized:
             self._p = _diagonal(p0)
@@ -303,8 +315,8 @@ class Ckf(_EulerKalman):
                 phi[i][j] = (1.0 if i == j else 0.0) + jac[i][j] * dt
                 phi[i][j + 3] = -e[i][j] * dt
             phi[i + 3][i + 3] = 1.0
-        p = self.params
-        dx = self._predict_correct(phi, p.ckf_q, p.ckf_r, p._p0, dt, ax, ay, az, acc_n2, mx, my, mz, mag_n2)
+        n = self._noise
+        dx = self._predict_correct(phi, n.q, n.r, n.p0, dt, ax, ay, az, acc_n2, mx, my, mz, mag_n2)
         if dx is not None:
             for i in range(3):
                 x[i] += dx[i]
