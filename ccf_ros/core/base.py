@@ -34,8 +34,15 @@ class Status(IntEnum):
     SKIPPED_NO_ACC_YET = 5
 
 
-#: ``status < ANSWERED_BELOW`` means the sample has an orientation output.
+#: ``status < ANSWERED_BELOW`` means the sample advanced the filter.
 ANSWERED_BELOW = int(Status.SKIPPED_BAD_GYRO)
+# Plain ints of the statuses for the per-sample path (an IntEnum member costs an attribute lookup there).
+_UPDATED = int(Status.UPDATED)
+_INITIALIZED = int(Status.INITIALIZED)
+_REINITIALIZED = int(Status.REINITIALIZED_AFTER_GAP)
+_BAD_GYRO = int(Status.SKIPPED_BAD_GYRO)
+_BAD_STAMP = int(Status.SKIPPED_STAMP)
+_NO_ACC_YET = int(Status.SKIPPED_NO_ACC_YET)
 
 
 class FilterFlags(NamedTuple):
@@ -223,12 +230,12 @@ class OrientationFilter(ABC):
         s = gx + gy + gz
         # x - x is 0.0 only for finite x: one test catches NaN and Inf in any component.
         if s - s != 0.0:
-            self.counts[3] += 1
-            return 3
+            self.counts[_BAD_GYRO] += 1
+            return _BAD_GYRO
         dt = t_s - self._t_last
         if not dt > 0.0 or t_s - t_s != 0.0:
-            self.counts[4] += 1
-            return 4
+            self.counts[_BAD_STAMP] += 1
+            return _BAD_STAMP
         self._t_last = t_s
         ax, ay, az = acc
         acc_n2 = ax * ax + ay * ay + az * az
@@ -250,23 +257,23 @@ class OrientationFilter(ABC):
             self._step(dt, gx, gy, gz, ax, ay, az, acc_n2, mx, my, mz, mag_n2)
             w = self._q[0]
             if w - w == 0.0:
-                self.counts[0] += 1
-                return 0
+                self.counts[_UPDATED] += 1
+                return _UPDATED
             # Non-finite state (should never happen): start over from this sample rather than publish NaN.
             self.n_nonfinite_resets += 1
             self.initialized = False
             self._q = (1.0, 0.0, 0.0, 0.0)
             self._reset_state()
-            status = 2
+            status = _REINITIALIZED
         else:
-            status = 2 if self.initialized else 1
+            status = _REINITIALIZED if self.initialized else _INITIALIZED
         if acc_n2 == 0.0:
             if self.initialized:
                 # After a gap without a usable accelerometer: hold, do not integrate across the gap.
-                self.counts[0] += 1
-                return 0
-            self.counts[5] += 1
-            return 5
+                self.counts[_UPDATED] += 1
+                return _UPDATED
+            self.counts[_NO_ACC_YET] += 1
+            return _NO_ACC_YET
         self._init(ax, ay, az, mx, my, mz, mag_n2 != 0.0)
         self.initialized = True
         self.counts[status] += 1
