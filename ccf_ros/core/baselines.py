@@ -73,9 +73,9 @@ class _NwuFilter(OrientationFilter):
         q = quat_from_acc_mag((ax, ay, az), (mx, my, mz) if mag_ok else None)
         qn = quat_mul(_Q_NWU_FROM_ENU, q)
         self._qn = (float(qn[0]), float(qn[1]), float(qn[2]), float(qn[3]))
-        self._publish()
+        self._nwu_to_enu()
 
-    def _publish(self) -> None:
+    def _nwu_to_enu(self) -> None:
         # q_enu = (cos 45°, 0, 0, sin 45°) ⊗ q_nwu, written out: a product with a constant, no numpy per sample.
         w, x, y, z = self._qn
         self._q = (_S * (w - z), _S * (x - y), _S * (y + x), _S * (z + w))
@@ -138,7 +138,7 @@ class Madgwick(_NwuFilter):
         q3 += d3 * dt
         n = 1.0 / math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
         self._qn = (q0 * n, q1 * n, q2 * n, q3 * n)
-        self._publish()
+        self._nwu_to_enu()
 
     @property
     def gyro_bias(self) -> tuple[float, float, float]:
@@ -202,7 +202,7 @@ class Mahony(_NwuFilter):
         )
         n = 1.0 / math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
         self._qn = (q0 * n, q1 * n, q2 * n, q3 * n)
-        self._publish()
+        self._nwu_to_enu()
 
     @property
     def gyro_bias(self) -> tuple[float, float, float]:

@@ -170,7 +170,7 @@ class _Coefficients:
     def of(cls, p: CcfParams, dt: float) -> _Coefficients:
         k_rest = -math.expm1(-dt / p.rest_tau_s)
         # Rest thresholds apply to (sample - new low-pass) = (1 - k_rest) * (sample - old low-pass).
-        keep2 = (1.0 - k_rest) ** 2 if k_rest < 1.0 else 1e-300
+        rest_keep2 = (1.0 - k_rest) ** 2 if k_rest < 1.0 else 1e-300
         return cls(
             dt=dt,
             # Float stamps near 1.7e9 s resolve 0.24 µs, so dt wobbles by ~1e-4 relative: gains are reused while dt
@@ -184,7 +184,7 @@ class _Coefficients:
             k_ncf=-math.expm1(-dt / p.tau_ncf_s),
             k_int=dt / (p.tau_ncf_s * p.tau_bias_s) if p.motion_bias else 0.0,
             k_rest=k_rest,
-            rest_gyro2=p.rest_gyro_rad_s**2 / keep2,
+            rest_gyro2=p.rest_gyro_rad_s**2 / rest_keep2,
             rest_acc2=p.rest_acc_m_s2**2,
             bias_max=p.bias_max_rad_s,
             bias_max2=p.bias_max_rad_s**2,
@@ -229,8 +229,8 @@ class QuaternionCcf(OrientationFilter):
 
     name = 'ccf'
     __slots__ = (
-        '_b', '_c', '_dn', '_g_lp', '_gyro_lp', '_heading_known', '_mag_bounds', '_mag_candidate', '_mag_disturbed_s',
-        '_mag_have_ref', '_mag_ref', '_n_init', '_rest_s', '_u_bias', '_var_head', '_var_incl',
+        '_bias', '_coef', '_dn', '_g_lp', '_gyro_lp', '_heading_known', '_mag_bounds', '_mag_candidate',
+        '_mag_disturbed_s', '_mag_have_ref', '_mag_ref', '_n_init', '_rest_s', '_u_bias', '_var_head', '_var_incl',
     )
     params: CcfParams
 
@@ -238,8 +238,8 @@ class QuaternionCcf(OrientationFilter):
         super().__init__(params if params is not None else CcfParams())
 
     def _reset_state(self) -> None:
-        self._b = (0.0, 0.0, 0.0)
-        self._c = _Coefficients.of(self.params, 0.0)
+        self._bias = (0.0, 0.0, 0.0)
+        self._coef = _Coefficients.of(self.params, 0.0)
         self._g_lp = (0.0, 0.0, GRAVITY_M_S2)
         self._dn = (0.0, 0.0, 0.0)
         self._gyro_lp = (0.0, 0.0, 0.0)
@@ -288,7 +288,7 @@ class QuaternionCcf(OrientationFilter):
         self.mag_disturbed = False
 
     def _params_changed(self) -> None:
-        self._c = _Coefficients.of(self.params, 0.0)
+        self._coef = _Coefficients.of(self.params, 0.0)
         if self._mag_have_ref:
             self._mag_bounds = self._bounds(*self._mag_ref)
             self._mag_candidate = self._mag_bounds
@@ -315,7 +315,7 @@ class QuaternionCcf(OrientationFilter):
         self._q = q
         self._g_lp = (ax, ay, az)
         self._dn = (0.0, 0.0, 0.0)
-        self._gyro_lp = self._b
+        self._gyro_lp = self._bias
         self._rest_s = 0.0
         self._var_incl = 0.0
         # Start-up: the blends begin as running means (gain 1/n) and hand over to their time constants once 1/n
@@ -340,11 +340,11 @@ class QuaternionCcf(OrientationFilter):
         mz: float,
         mag_n2: float,
     ) -> None:
-        c = self._c
+        c = self._coef
         if not c.dt_lo <= dt <= c.dt_hi:
-            c = self._c = _Coefficients.of(self.params, dt)
+            c = self._coef = _Coefficients.of(self.params, dt)
         qw, qx, qy, qz = self._q
-        bx, by, bz = self._b
+        bx, by, bz = self._bias
         fx, fy, fz = self._g_lp
         dnx, dny, dnz = self._dn
         # Rows of the body->world rotation matrix: world east (r0), north (r1) and up (v) in body coordinates.
@@ -481,7 +481,7 @@ class QuaternionCcf(OrientationFilter):
             bz = m
         elif bz < -m:
             bz = -m
-        self._b = (bx, by, bz)
+        self._bias = (bx, by, bz)
         # LCF: integrate the bias-corrected rate plus the blend correction: q <- q ⊗ exp(h).
         rx = (gx - bx) * dt
         ry = (gy - by) * dt
@@ -563,7 +563,7 @@ class QuaternionCcf(OrientationFilter):
     @property
     def gyro_bias(self) -> tuple[float, float, float]:
         """Gyroscope bias estimate, rad/s, body frame."""
-        return self._b
+        return self._bias
 
     @property
     def ncf_quaternion(self) -> Quat:

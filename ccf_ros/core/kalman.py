@@ -276,7 +276,7 @@ class Ckf(_EulerKalman):
     6x6 error covariance."""
 
     name = 'ckf'
-    __slots__ = ('_b',)
+    __slots__ = ('_bias',)
     params: CkfParams
 
     def __init__(self, params: CkfParams | None = None) -> None:
@@ -284,7 +284,7 @@ class Ckf(_EulerKalman):
 
     def _reset_state(self) -> None:
         self._x = [0.0, 0.0, 0.0]
-        self._b = [0.0, 0.0, 0.0]
+        self._bias = [0.0, 0.0, 0.0]
         self._p = [[0.0] * 6 for _ in range(6)]
 
     def _init(self, ax: float, ay: float, az: float, mx: float, my: float, mz: float, mag_ok: bool) -> None:
@@ -304,7 +304,7 @@ class Ckf(_EulerKalman):
         self, dt: float, gx: float, gy: float, gz: float, ax: float, ay: float, az: float, acc_n2: float,
         mx: float, my: float, mz: float, mag_n2: float,
     ) -> None:
-        x, b = self._x, self._b
+        x, b = self._x, self._bias
         rates, jac, e = _kinematics(x[0], x[1], gx - b[0], gy - b[1], gz - b[2])
         for i in range(3):
             x[i] += rates[i] * dt
@@ -326,4 +326,4 @@ class Ckf(_EulerKalman):
     @property
     def gyro_bias(self) -> tuple[float, float, float]:
         """Estimated gyro bias, rad/s, body frame."""
-        return (self._b[0], self._b[1], self._b[2])
+        return (self._bias[0], self._bias[1], self._bias[2])

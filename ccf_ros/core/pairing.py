@@ -29,8 +29,8 @@ class MagPairer:
 
     def reset(self) -> None:
         """Forget all magnetometer samples."""
-        self._t = -math.inf
-        self._m: tuple[float, float, float] | None = None
+        self._t_in_use = -math.inf
+        self._field_in_use: tuple[float, float, float] | None = None
         self._pending: deque[tuple[float, tuple[float, float, float]]] = deque(maxlen=256)
 
     def restart(self, t_s: float) -> None:
@@ -38,8 +38,8 @@ class MagPairer:
         one from the old timeline, keep the pending samples that belong to the new one (stamps up to ``t_s`` plus
         the tolerance and not older than the timeout), so the restart initialises with the magnetometer."""
         keep = [(tm, m) for tm, m in self._pending if t_s - self.timeout_s <= tm <= t_s + self.tolerance_s]
-        self._t = -math.inf
-        self._m = None
+        self._t_in_use = -math.inf
+        self._field_in_use = None
         self._pending.clear()
         self._pending.extend(keep)
 
@@ -56,13 +56,13 @@ class MagPairer:
             # Arrival order is (nearly) stamp order: take samples from the front while they are due.
             while pending and pending[0][0] <= limit:
                 tm, m = pending.popleft()
-                if tm >= self._t:
-                    self._t, self._m = tm, m
-        if self._m is None or t_s - self._t > self.timeout_s:
+                if tm >= self._t_in_use:
+                    self._t_in_use, self._field_in_use = tm, m
+        if self._field_in_use is None or t_s - self._t_in_use > self.timeout_s:
             return None
-        return self._m
+        return self._field_in_use
 
     @property
-    def age_s(self) -> float:
+    def stamp_in_use_s(self) -> float:
         """Stamp of the magnetometer sample in use, s (``-inf`` if none)."""
-        return self._t
+        return self._t_in_use
