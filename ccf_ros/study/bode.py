@@ -13,10 +13,10 @@ from typing import Any
 
 import numpy as np
 
-from ..core.ccf import CcfParams, tilt_transfer
+from ..core.ccf import GRAVITY_M_S2, CcfParams, tilt_transfer
 from ..core.registry import make_filter
-
-G = 9.80665
+from .experiments import PAPER_ALPHA, euler_ccf_settings, ncf_settings
+from .labels import EULER
 
 
 def tf_lcf(f_hz: np.ndarray, alpha: float, rate_hz: float) -> np.ndarray:
@@ -54,7 +54,7 @@ def measure(
     n = int(round((settle_s + fit_s) * rate_hz))
     t = np.arange(n) / rate_hz
     roll = amplitude_rad * np.sin(2 * np.pi * f_hz * t)
-    acc = np.stack((np.zeros(n), G * np.sin(roll), G * np.cos(roll)), axis=1)
+    acc = np.stack((np.zeros(n), GRAVITY_M_S2 * np.sin(roll), GRAVITY_M_S2 * np.cos(roll)), axis=1)
     filt = make_filter({**settings, 'use_mag': False})
     out = np.full(n, np.nan)
     zero = (0.0, 0.0, 0.0)
@@ -80,9 +80,10 @@ def phase_deg(h: np.ndarray | complex) -> np.ndarray:
     return np.degrees(np.angle(h))
 
 
-def _slowest(a1: float, a0: float) -> float:
-    """Smallest |real part| of the roots of s² + a1 s + a0, rad/s."""
-    return float(min(abs(r.real) for r in np.roots([1.0, a1, a0])))
+def _slowest(*coefficients: float) -> float:
+    """Smallest |real part| of the roots of the polynomial ``s^n + c1 s^(n-1) + ... + cn`` (``coefficients``: c1..cn),
+    rad/s: the slowest pole of a transfer function with that denominator."""
+    return float(min(abs(r.real) for r in np.roots([1.0, *coefficients])))
 
 
 def cases(rate_hz: float) -> list[tuple[str, str, dict[str, Any], Any, float]]:
@@ -92,16 +93,16 @@ def cases(rate_hz: float) -> list[tuple[str, str, dict[str, Any], Any, float]]:
         out.append(('fig02_lcf', f'LCF alpha={a:g}', {'filter': 'lcf', 'lcf_alpha': a},
                     lambda f, a=a: tf_lcf(f, a, rate_hz), (1.0 - a) * rate_hz / a))
     for kp, ki in ((25.0, 0.1), (1.0, 0.01), (0.1, 1.0)):
-        out.append(('fig04_ncf', f'NCF Kp={kp:g} Ki={ki:g}', {'filter': 'ncf', 'kp': kp, 'ki': ki},
+        out.append(('fig04_ncf', f'NCF Kp={kp:g} Ki={ki:g}', ncf_settings(EULER, kp, ki),
                     lambda f, kp=kp, ki=ki: tf_ncf(f, kp, ki), _slowest(kp, ki)))
+    alpha = PAPER_ALPHA
     for kp, ki in ((25.0, 0.1), (1.0, 0.01), (0.1, 1.0)):
-        out.append(('fig08_ccf', f'CCF Kp={kp:g} Ki={ki:g} alpha=0.7',
-                    {'filter': 'ccf', 'formulation': 'euler', 'kp': kp, 'ki': ki, 'alpha': 0.7},
-                    lambda f, kp=kp, ki=ki: tf_ccf(f, kp, ki, 0.7), _slowest(0.7 * kp, 0.7 * ki)))
+        out.append(('fig08_ccf', f'CCF Kp={kp:g} Ki={ki:g} alpha={alpha:g}', euler_ccf_settings(kp, ki, alpha),
+                    lambda f, kp=kp, ki=ki: tf_ccf(f, kp, ki, alpha), _slowest(alpha * kp, alpha * ki)))
     p = CcfParams(use_mag=False, rest_bias=False)
     kf, kn, ka = 1.0 / p.tau_acc_lp_s, 1.0 / p.tau_ncf_s, 1.0 / p.tau_acc_s
     ki = 1.0 / (p.tau_ncf_s * p.tau_bias_s)
-    slowest = float(min(abs(r.real) for r in np.roots([1.0, kf + kn, kf * kn, ki * kf])))
+    slowest = _slowest(kf + kn, kf * kn, ki * kf)
     out.append(('fig08_ccf', 'ccf_ros cascade (default, from the accelerometer angle)',
                 {'filter': 'ccf', 'rest_bias': False},
                 lambda f: np.array([tilt_transfer(p, float(x))[0] for x in np.atleast_1d(f)]), min(slowest, ka, kf)))

@@ -17,17 +17,52 @@ from typing import Any
 import numpy as np
 
 from ..core.ccf import CcfParams
-from ..core.metrics import error_angles
-from ..core.quaternion import quat_from_acc_mag, quat_from_rotvec, quat_mul, quat_to_euler, wrap_angle
+from ..core.metrics import summarize
+from ..core.quaternion import quat_from_acc_mag, quat_from_rotvec, quat_mul, quat_to_euler
 from ..core.registry import make_filter
 from .datasets import Dataset, run_filter, score
+from .labels import (
+    ACC_MAG_ONLY,
+    CCF_EULER,
+    CCF_QUATERNION,
+    CKF,
+    EKF,
+    EULER,
+    FORMULATIONS,
+    GRID_CCF,
+    GRID_NCF,
+    GYRO_ONLY,
+    LCF,
+    MADGWICK,
+    MAHONY,
+    NCF,
+    QUATERNION,
+    REFERENCE,
+)
 
 #: The paper's gain grid (Tables 1-2) and defaults.
 KP_GRID = (75.0, 25.0, 1.0, 0.1)
 KI_GRID = (0.01, 0.1, 1.0)
 ALPHA_GRID = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
 PAPER_KP, PAPER_KI, PAPER_ALPHA = 25.0, 0.1, 0.7
-FORMULATIONS = ('euler', 'quaternion')
+#: Factors applied to the ccf_ros default time constants in :func:`default_sensitivity`.
+SENSITIVITY_FACTORS = (1 / 3, 1.0, 3.0)
+
+
+# Keys of the per-dataset results; the report reads them back with the same functions.
+def grid_key(form: str, kind: str, kp: float, ki: float) -> str:
+    """Key of :func:`gain_grid`: ``formulation/kind/kp/ki`` (kind: GRID_NCF or GRID_CCF)."""
+    return f'{form}/{kind}/{kp:g}/{ki:g}'
+
+
+def alpha_key(form: str, alpha: float) -> str:
+    """Key of :func:`alpha_sweep`: ``formulation/alpha``."""
+    return f'{form}/{alpha:g}'
+
+
+def sensitivity_key(f_blend: float, f_ncf: float) -> str:
+    """Key of :func:`default_sensitivity`: ``f_blend/f_ncf``."""
+    return f'{f_blend:.3g}/{f_ncf:.3g}'
 
 
 def quaternion_ccf_settings(kp: float, ki: float, alpha: float) -> dict[str, Any]:
@@ -42,7 +77,7 @@ def quaternion_ccf_settings(kp: float, ki: float, alpha: float) -> dict[str, Any
     tau = 1.0 / max(alpha * kp, 1e-9)
     return {
         'filter': 'ccf',
-        'formulation': 'quaternion',
+        'formulation': QUATERNION,
         'tau_ncf_s': tau,
         'tau_bias_s': kp / max(ki, 1e-12),
         'tau_acc_s': tau,
@@ -51,66 +86,67 @@ def quaternion_ccf_settings(kp: float, ki: float, alpha: float) -> dict[str, Any
     }
 
 
+def euler_ccf_settings(kp: Any, ki: Any, alpha: Any) -> dict[str, Any]:
+    """The paper's CCF; each gain a float or a ``(roll, pitch, yaw)`` triple."""
+    return {'filter': 'ccf', 'formulation': EULER, 'kp': kp, 'ki': ki, 'alpha': alpha}
+
+
 def ncf_settings(formulation: str, kp: float, ki: float) -> dict[str, Any]:
     """The NCF of a formulation at gains ``kp`` (1/s), ``ki`` (1/s²)."""
-    if formulation == 'euler':
+    if formulation == EULER:
         return {'filter': 'ncf', 'kp': kp, 'ki': ki}
     return {'filter': 'mahony', 'mahony_kp': kp, 'mahony_ki': ki}
 
 
 def ccf_settings(formulation: str, kp: float, ki: float, alpha: float) -> dict[str, Any]:
     """The CCF of a formulation at the paper's gains."""
-    if formulation == 'euler':
-        return {'filter': 'ccf', 'formulation': 'euler', 'kp': kp, 'ki': ki, 'alpha': alpha}
+    if formulation == EULER:
+        return euler_ccf_settings(kp, ki, alpha)
     return quaternion_ccf_settings(kp, ki, alpha)
 
 
 #: Figs 10-11: every method with its Table 4 / default parameters (LSCF is added per dataset after its fit).
 METHODS: dict[str, dict[str, Any]] = {
-    'LCF': {'filter': 'lcf'},
-    'NCF': {'filter': 'ncf'},
-    'CCF paper (euler)': {'filter': 'ccf', 'formulation': 'euler'},
-    'CCF ccf_ros (quaternion)': {'filter': 'ccf'},
-    'Mahony': {'filter': 'mahony'},
-    'Madgwick': {'filter': 'madgwick'},
-    'EKF': {'filter': 'ekf'},
-    'CKF': {'filter': 'ckf'},
+    LCF: {'filter': 'lcf'},
+    NCF: {'filter': 'ncf'},
+    CCF_EULER: {'filter': 'ccf', 'formulation': EULER},
+    CCF_QUATERNION: {'filter': 'ccf'},
+    MAHONY: {'filter': 'mahony'},
+    MADGWICK: {'filter': 'madgwick'},
+    EKF: {'filter': 'ekf'},
+    CKF: {'filter': 'ckf'},
 }
 
 
 def gain_grid(ds: Dataset) -> dict[str, Any]:
-    """Tables 1-2: NCF and CCF (alpha = 0.7) over Kp x Ki, both formulations. Keys ``formulation/filter/kp/ki``."""
+    """Tables 1-2: NCF and CCF (alpha = 0.7) over Kp x Ki, both formulations. Keys: :func:`grid_key`."""
     out: dict[str, Any] = {}
     for form in FORMULATIONS:
         for kp in KP_GRID:
             for ki in KI_GRID:
-                out[f'{form}/NCF/{kp:g}/{ki:g}'] = score(ncf_settings(form, kp, ki), ds)
-                out[f'{form}/CCF/{kp:g}/{ki:g}'] = score(ccf_settings(form, kp, ki, PAPER_ALPHA), ds)
+                out[grid_key(form, GRID_NCF, kp, ki)] = score(ncf_settings(form, kp, ki), ds)
+                out[grid_key(form, GRID_CCF, kp, ki)] = score(ccf_settings(form, kp, ki, PAPER_ALPHA), ds)
     return out
-
-
-#: Factors applied to the ccf_ros default time constants in :func:`default_sensitivity`.
-SENSITIVITY_FACTORS = (1 / 3, 1.0, 3.0)
 
 
 def default_sensitivity(ds: Dataset) -> dict[str, Any]:
     """The ccf_ros CCF with its time constants scaled around the defaults: the blends (``tau_acc_s``,
     ``tau_acc_lp_s``, ``tau_mag_s`` together) and the NCF (``tau_ncf_s``, ``tau_bias_s`` together) each by 1/3, 1,
-    3. Keys ``f_blend/f_ncf``."""
+    3. Keys: :func:`sensitivity_key`."""
     d = CcfParams()
     out = {}
     for fa in SENSITIVITY_FACTORS:
         for fb in SENSITIVITY_FACTORS:
             settings = {'filter': 'ccf', 'tau_acc_s': d.tau_acc_s * fa, 'tau_acc_lp_s': d.tau_acc_lp_s * fa,
                         'tau_mag_s': d.tau_mag_s * fa, 'tau_ncf_s': d.tau_ncf_s * fb, 'tau_bias_s': d.tau_bias_s * fb}
-            out[f'{fa:.3g}/{fb:.3g}'] = score(settings, ds)
+            out[sensitivity_key(fa, fb)] = score(settings, ds)
     return out
 
 
 def alpha_sweep(ds: Dataset) -> dict[str, Any]:
-    """Fig 9: CCF at the paper's Kp, Ki over alpha 0.1-0.9, both formulations. Keys ``formulation/alpha``."""
+    """Fig 9: CCF at the paper's Kp, Ki over alpha 0.1-0.9, both formulations. Keys: :func:`alpha_key`."""
     return {
-        f'{form}/{a:g}': score(ccf_settings(form, PAPER_KP, PAPER_KI, a), ds) for form in FORMULATIONS for a in ALPHA_GRID
+        alpha_key(form, a): score(ccf_settings(form, PAPER_KP, PAPER_KI, a), ds) for form in FORMULATIONS for a in ALPHA_GRID
     }
 
 
@@ -124,8 +160,8 @@ def time_series(ds: Dataset, max_points: int = 4000) -> dict[str, Any]:
     magnetometer attitude alone, at (at most ``max_points``) reference stamps."""
     step = max(1, len(ds.t_ref) // max_points)
     sel = np.arange(0, len(ds.t_ref), step)
-    out: dict[str, Any] = {'t_s': (ds.t_ref[sel] - ds.t_ref[0]).tolist(), 'reference': quat_to_euler(ds.q_ref[sel])}
-    for label in ('CCF ccf_ros (quaternion)', 'CCF paper (euler)'):
+    out: dict[str, Any] = {'t_s': (ds.t_ref[sel] - ds.t_ref[0]).tolist(), REFERENCE: quat_to_euler(ds.q_ref[sel])}
+    for label in (CCF_QUATERNION, CCF_EULER):
         q, _, _ = run_filter(METHODS[label], ds)
         out[label] = quat_to_euler(q[sel])
     # Gyro only: integrate from the first reference orientation (exact rotation per sample).
@@ -141,10 +177,10 @@ def time_series(ds: Dataset, max_points: int = 4000) -> dict[str, Any]:
         q_cur /= math.sqrt(float(q_cur @ q_cur))
         q_g[k] = q_cur
     idx = np.clip(np.searchsorted(ds.t_s, ds.t_ref[sel]), 0, len(ds.t_s) - 1)
-    out['gyro only'] = quat_to_euler(q_g[idx])
+    out[GYRO_ONLY] = quat_to_euler(q_g[idx])
     mag = ds.mag[idx]
     q_am = quat_from_acc_mag(ds.acc[idx], np.where(np.isfinite(mag), mag, 0.0))
-    out['accelerometer/magnetometer only'] = quat_to_euler(q_am)
+    out[ACC_MAG_ONLY] = quat_to_euler(q_am)
     for key, val in list(out.items()):
         if isinstance(val, np.ndarray):
             out[key] = val.tolist()
@@ -154,27 +190,25 @@ def time_series(ds: Dataset, max_points: int = 4000) -> dict[str, Any]:
 
 #: Figs 15-16: filters of the long run.
 LONG_RUN_FILTERS: dict[str, dict[str, Any]] = {
-    k: METHODS[k] for k in ('CCF ccf_ros (quaternion)', 'CCF paper (euler)', 'NCF', 'EKF', 'CKF')
+    k: METHODS[k] for k in (CCF_QUATERNION, CCF_EULER, NCF, EKF, CKF)
 }
 
 
 def long_run(ds: Dataset, label: str, window_s: float = 100.0) -> dict[str, Any]:
-    """Figs 15-16: one filter over a long simulated run: RMSE per ``window_s`` window (total deg, per axis rad)
-    and the bias estimate against the true bias (rad/s), decimated to one value per second."""
+    """Figs 15-16: one filter over a long simulated run: RMSE per ``window_s`` window (total deg, per axis rad;
+    scored as in :func:`ccf_ros.core.metrics.summarize`) and the bias estimate against the true bias (rad/s),
+    decimated to one value per second."""
     q, bias, _ = run_filter(LONG_RUN_FILTERS[label], ds)
-    total, _, _ = error_angles(np.where(np.isfinite(q), q, [1.0, 0, 0, 0]), ds.q_ref)
-    total[~np.isfinite(q).all(axis=1)] = np.pi
-    d = wrap_angle(quat_to_euler(np.where(np.isfinite(q), q, [1.0, 0, 0, 0])) - quat_to_euler(ds.q_ref))
-    t = ds.t_ref - ds.t_ref[0]
-    win = np.floor(t / window_s).astype(int)
-    n_win = int(win.max()) + 1
-    rmse_deg, rmse_axis = [], []
-    for w in range(n_win):
+    win = np.floor((ds.t_ref - ds.t_ref[0]) / window_s).astype(int)
+    rmse_deg: list[float] = []
+    rmse_axis: list[list[float]] = []
+    for w in range(int(win.max()) + 1):
         m = (win == w) & ds.mask
         if not m.any():
-            continue
-        rmse_deg.append(float(np.degrees(np.sqrt(np.mean(total[m] ** 2)))))
-        rmse_axis.append([float(np.sqrt(np.mean(d[m, i] ** 2))) for i in range(3)])
+            continue  # a window of rest only
+        s = summarize(q[m], ds.q_ref[m])
+        rmse_deg.append(s.total_rmse_deg)
+        rmse_axis.append(list(s.rmse_rad))
     per_s = max(1, int(round(ds.rate_hz)))
     out: dict[str, Any] = {
         'window_s': window_s,
@@ -190,7 +224,7 @@ def long_run(ds: Dataset, label: str, window_s: float = 100.0) -> dict[str, Any]
 def compute_time(ds: Dataset, repetitions: int = 20, n_samples: int = 2860) -> dict[str, Any]:
     """Fig 12: time per ``update()`` (µs) of CCF (both forms), EKF and CKF over the first ``n_samples`` samples,
     ``repetitions`` times, the filters interleaved within each repetition so that machine load hits all alike."""
-    labels = {k: METHODS[k] for k in ('CCF paper (euler)', 'CCF ccf_ros (quaternion)', 'EKF', 'CKF')}
+    labels = {k: METHODS[k] for k in (CCF_EULER, CCF_QUATERNION, EKF, CKF)}
     n = min(n_samples, len(ds.t_s))
     t = ds.t_s[:n].tolist()
     g = ds.gyr[:n].tolist()
@@ -205,8 +239,7 @@ def compute_time(ds: Dataset, repetitions: int = 20, n_samples: int = 2860) -> d
             for i in range(n):
                 update(t[i], g[i], a[i], m[i])
             times[label].append((time.perf_counter() - t0) / n * 1e6)
-    ref = 'CCF paper (euler)'
-    ratios = {k: [v / r for v, r in zip(vals, times[ref], strict=True)] for k, vals in times.items()}
+    ratios = {k: [v / r for v, r in zip(vals, times[CCF_EULER], strict=True)] for k, vals in times.items()}
     return {
         'n_samples': n,
         'repetitions': repetitions,

@@ -20,15 +20,17 @@ from typing import Any
 
 import numpy as np
 
-from ..core.metrics import error_angles
 from ..core.quaternion import quat_conj, quat_mul
 from ..errors import CcfError
-from .datasets import Dataset, run_filter
+from .datasets import Dataset, fill_missing, run_filter, total_error_rad
+from .experiments import euler_ccf_settings
+from .labels import EULER
 
 _MAX_RESIDUALS = 4000
 
 
 def _scored_rows(ds: Dataset) -> np.ndarray:
+    """Indices of the scored samples with a reference, thinned to at most ``_MAX_RESIDUALS`` (fit time)."""
     idx = np.flatnonzero(ds.mask & np.isfinite(ds.q_ref).all(axis=1))
     step = max(1, len(idx) // _MAX_RESIDUALS)
     return idx[::step]
@@ -36,8 +38,8 @@ def _scored_rows(ds: Dataset) -> np.ndarray:
 
 def _rotation_error(q: np.ndarray, q_ref: np.ndarray) -> np.ndarray:
     """``(M, 3)`` rotation vectors (rad, world frame) of ``q ⊗ q_ref⁻¹``; a missing estimate counts as pi about x."""
-    bad = ~np.isfinite(q).all(axis=1)
-    e = quat_mul(np.where(bad[:, None], [1.0, 0, 0, 0], q), quat_conj(q_ref))
+    filled, bad = fill_missing(q)
+    e = quat_mul(filled, quat_conj(q_ref))
     e *= np.where(e[:, :1] < 0.0, -1.0, 1.0)
     v = np.linalg.norm(e[:, 1:], axis=1)
     angle = 2.0 * np.arctan2(v, e[:, 0])
@@ -55,6 +57,27 @@ def _least_squares() -> Any:
     return least_squares
 
 
+def _rms(r: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(r**2)))
+
+
+def _fit_result(gains: dict[str, Any], runs: int, r_start: np.ndarray, res: Any, settings: dict[str, Any]
+                ) -> dict[str, Any]:
+    """What both fits return: the fitted values, the filter runs spent, the residual RMS before/after (rad)."""
+    return {
+        **gains,
+        'filter_runs': runs,
+        'residual_rms_rad_start': _rms(r_start),
+        'residual_rms_rad_end': _rms(res.fun),
+        'settings': settings,
+    }
+
+
+def _quaternion_settings(tau_acc_s: float, tau_mag_s: float, tau_bias_s: float) -> dict[str, Any]:
+    """The ccf_ros CCF with the three fitted time constants (s), the others at their defaults."""
+    return {'filter': 'ccf', 'tau_acc_s': tau_acc_s, 'tau_mag_s': tau_mag_s, 'tau_bias_s': tau_bias_s}
+
+
 def fit_euler(ds: Dataset, max_iterations: int = 8) -> dict[str, Any]:
     """Fit ``(Kp, Ki, alpha)`` per axis of the paper's CCF. Returns the gains, the number of filter runs and the
     residual RMS before/after (rad)."""
@@ -65,13 +88,11 @@ def fit_euler(ds: Dataset, max_iterations: int = 8) -> dict[str, Any]:
     cache: dict[bytes, np.ndarray] = {}
 
     def gains(x: np.ndarray) -> dict[str, Any]:
-        return {
-            'filter': 'ccf',
-            'formulation': 'euler',
-            'kp': tuple(float(10.0**v) for v in x[0:3]),
-            'ki': tuple(float(10.0**v) for v in x[3:6]),
-            'alpha': tuple(float(min(1.0, max(0.0, v))) for v in x[6:9]),
-        }
+        return euler_ccf_settings(
+            kp=tuple(float(10.0**v) for v in x[0:3]),
+            ki=tuple(float(10.0**v) for v in x[3:6]),
+            alpha=tuple(float(min(1.0, max(0.0, v))) for v in x[6:9]),
+        )
 
     def residuals(x: np.ndarray) -> np.ndarray:
         key = np.asarray(x, dtype=float).tobytes()
@@ -106,15 +127,7 @@ def fit_euler(ds: Dataset, max_iterations: int = 8) -> dict[str, Any]:
     r_start = residuals(x0)
     res = least_squares(residuals, x0, jac=jacobian, bounds=(lo, hi), max_nfev=max_iterations, x_scale='jac')
     g = gains(res.x)
-    return {
-        'kp': list(g['kp']),
-        'ki': list(g['ki']),
-        'alpha': list(g['alpha']),
-        'filter_runs': runs[0],
-        'residual_rms_rad_start': float(np.sqrt(np.mean(r_start**2))),
-        'residual_rms_rad_end': float(np.sqrt(np.mean(res.fun**2))),
-        'settings': g,
-    }
+    return _fit_result({k: list(g[k]) for k in ('kp', 'ki', 'alpha')}, runs[0], r_start, res, g)
 
 
 def fit_quaternion(ds: Dataset, max_iterations: int = 8) -> dict[str, Any]:
@@ -125,21 +138,12 @@ def fit_quaternion(ds: Dataset, max_iterations: int = 8) -> dict[str, Any]:
     runs = [0]
 
     def settings(x: np.ndarray) -> dict[str, Any]:
-        return {
-            'filter': 'ccf',
-            'tau_acc_s': float(10.0 ** x[0]),
-            'tau_mag_s': float(10.0 ** x[1]),
-            'tau_bias_s': float(10.0 ** x[2]),
-        }
+        return _quaternion_settings(float(10.0 ** x[0]), float(10.0 ** x[1]), float(10.0 ** x[2]))
 
     def residuals(x: np.ndarray) -> np.ndarray:
         runs[0] += 1
         q, _, _ = run_filter(settings(x), ds)
-        q = q[rows]
-        bad = ~np.isfinite(q).all(axis=1)
-        total, _, _ = error_angles(np.where(bad[:, None], [1.0, 0, 0, 0], q), q_ref)
-        total[bad] = math.pi
-        return total
+        return total_error_rad(q[rows], q_ref)
 
     x0 = np.log10([3.0, 9.0, 60.0])
     r_start = residuals(x0)
@@ -147,15 +151,7 @@ def fit_quaternion(ds: Dataset, max_iterations: int = 8) -> dict[str, Any]:
         residuals, x0, bounds=([-2.0, -2.0, 0.0], [2.5, 2.5, 3.5]), max_nfev=max_iterations, diff_step=0.05
     )
     s = settings(res.x)
-    return {
-        'tau_acc_s': s['tau_acc_s'],
-        'tau_mag_s': s['tau_mag_s'],
-        'tau_bias_s': s['tau_bias_s'],
-        'filter_runs': runs[0],
-        'residual_rms_rad_start': float(np.sqrt(np.mean(r_start**2))),
-        'residual_rms_rad_end': float(np.sqrt(np.mean(res.fun**2))),
-        'settings': s,
-    }
+    return _fit_result({k: s[k] for k in ('tau_acc_s', 'tau_mag_s', 'tau_bias_s')}, runs[0], r_start, res, s)
 
 
 def pooled_settings(form: str, fits: list[dict[str, Any]]) -> dict[str, Any]:
@@ -167,17 +163,10 @@ def pooled_settings(form: str, fits: list[dict[str, Any]]) -> dict[str, Any]:
     def gmed(values: list[float]) -> float:
         return float(10.0 ** np.median(np.log10(values)))
 
-    if form == 'euler':
-        return {
-            'filter': 'ccf',
-            'formulation': 'euler',
-            'kp': tuple(gmed([f['kp'][i] for f in fits]) for i in range(3)),
-            'ki': tuple(gmed([f['ki'][i] for f in fits]) for i in range(3)),
-            'alpha': tuple(float(np.median([f['alpha'][i] for f in fits])) for i in range(3)),
-        }
-    return {
-        'filter': 'ccf',
-        'tau_acc_s': gmed([f['tau_acc_s'] for f in fits]),
-        'tau_mag_s': gmed([f['tau_mag_s'] for f in fits]),
-        'tau_bias_s': gmed([f['tau_bias_s'] for f in fits]),
-    }
+    if form == EULER:
+        return euler_ccf_settings(
+            kp=tuple(gmed([f['kp'][i] for f in fits]) for i in range(3)),
+            ki=tuple(gmed([f['ki'][i] for f in fits]) for i in range(3)),
+            alpha=tuple(float(np.median([f['alpha'][i] for f in fits])) for i in range(3)),
+        )
+    return _quaternion_settings(*(gmed([f[k] for f in fits]) for k in ('tau_acc_s', 'tau_mag_s', 'tau_bias_s')))
