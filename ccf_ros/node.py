@@ -235,8 +235,17 @@ class CcfNode(Node):
         self._drain()
 
     def _on_imu_raw(self, data: bytes) -> None:
+        # A magnetometer sample that arrived since the executor looked goes first (it may be this one's).
+        self._take_mags()
         self._imu(data)
         self._drain()
+
+    def _take_mags(self) -> None:
+        take_mag = self._take_mag
+        mag = take_mag()
+        while mag is not None:
+            self._mag(mag)
+            mag = take_mag()
 
     def _drain(self) -> None:
         """Take the messages already queued, magnetometer first, in this callback.
@@ -245,12 +254,9 @@ class CcfNode(Node):
         load, when messages queue up, this serves them in one cycle instead of one cycle each. Magnetometer samples
         taken ahead of the IMU wait in the pairer for their stamp, so taking them first pairs as in bag order.
         """
-        take_mag, take_imu = self._take_mag, self._take_imu
+        take_imu = self._take_imu
         for _ in range(self.DRAIN_MAX):
-            mag = take_mag()
-            while mag is not None:
-                self._mag(mag)
-                mag = take_mag()
+            self._take_mags()
             imu = take_imu()
             if imu is None:
                 return

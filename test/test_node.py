@@ -186,14 +186,15 @@ def test_corrected_rate_gravity_free_acceleration_and_yaw_offset_are_the_engines
         ref = _replay_reference(inputs[:1200], settings)
         assert len(h.out) == len(ref) == 600
         np.testing.assert_array_equal(_xyzw(h.out), _ref_xyzw(ref))
-        v = h.out
-        np.testing.assert_array_equal(np.array([(m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z)
-                                                for m in v]), np.array([o.angular_velocity for o in ref]))
-        np.testing.assert_array_equal(
-            np.array([(m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z) for m in v]),
-            np.array([o.linear_acceleration for o in ref]))
-        # Gravity removed: about 0 at the simulated rest (the first 5 s), not 9.8.
-        assert np.abs([m.linear_acceleration.z for m in v[:500]]).max() < 1.0
+        rate = np.array([(m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z) for m in h.out])
+        lin = np.array([(m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z) for m in h.out])
+        np.testing.assert_array_equal(rate, np.array([o.angular_velocity for o in ref]))
+        np.testing.assert_array_equal(lin, np.array([o.linear_acceleration for o in ref]))
+        raw = np.array([(m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z)
+                        for m in _imu_only(inputs[:1200])])
+        assert not np.array_equal(rate, raw)  # the bias is subtracted
+        # Gravity removed: noise only at the simulated rest (the first 5 s; 0.25 m/s^2 at most), not 9.8.
+        assert np.abs(lin[:500]).max() < 0.3
     finally:
         h.close()
 
@@ -315,15 +316,17 @@ def test_held_samples_are_released_by_the_timer_when_the_magnetometer_stops(cont
         h.wait_connected()
         h.feed(inputs[:200], 100)
         assert node.sync.lockstep
-        # The magnetometer stops: the next IMU sample waits HOLD_S for it, then everything flows without waiting.
-        h.feed([m for m in inputs[200:400] if m[0] == IMU], 200)
+        # The magnetometer stops: the next IMU sample waits for it, and the node's one timer is set to its deadline
+        # (it otherwise runs at the diagnostics' 1 s) ...
+        imu_only = [m for m in inputs[200:400] if m[0] == IMU]
+        h.deliver(*imu_only[0])
+        assert node.sync.holding and node.timer.time_until_next_call() <= node.HOLD_S * 1e9
+        # ... which releases it and those queued behind it; then nothing waits.
+        h.feed(imu_only[1:], 200)
         assert len(h.out) == 200
         st = node.sync.stats()
-        assert st.n_timeouts == 1 and not st.lockstep
-        # Released by the timeout (>= HOLD_S), by the timer (not a second later by the next diagnostics).
-        assert node.HOLD_S * 1e3 <= st.max_ms < 200.0
-        np.testing.assert_array_equal(_xyzw(h.out), _ref_xyzw(_replay_reference(inputs[:200] + [
-            m for m in inputs[200:400] if m[0] == IMU])))
+        assert st.n_timeouts == 1 and not st.lockstep and st.max_ms >= node.HOLD_S * 1e3
+        np.testing.assert_array_equal(_xyzw(h.out), _ref_xyzw(_replay_reference(inputs[:200] + imu_only)))
     finally:
         h.close()
 
@@ -357,7 +360,7 @@ def test_parameters_validated_live_and_applied_without_reset(context, inputs):
         h.feed(inputs[2000:2200], 1100)
         assert h.spin_until(lambda: len(rpy) == 100)
         r = node.set_parameters([Parameter('formulation', value='euler'), Parameter('kp', value=[1.0, 2.0, 3.0])])[0]
-        assert r.successful and node.engine.filter.params._kp3 == (1.0, 2.0, 3.0)
+        assert r.successful and node.engine.filter.gains.kp == (1.0, 2.0, 3.0)
     finally:
         h.close()
 
@@ -437,13 +440,22 @@ def test_node_rejects_invalid_startup_parameters():
     assert r.returncode != 0 and 'tau_acc_s' in (r.stdout + r.stderr)
 
 
-def _engine_over_bag(bag):
-    """(stamp, [w, x, y, z]) of every answered IMU message of ``bag`` through the engine, in bag order."""
+def _engine_over_bag(bag, imu_first_after_silence=False):
+    """(stamp, [w, x, y, z]) of every answered IMU message of ``bag`` through the engine, in bag order.
+
+    ``imu_first_after_silence``: the first magnetometer message after a silence (more than 100 IMU messages without
+    one) comes after the IMU message that follows it (see the faults test).
+    """
     from ccf_ros.core.quaternion import from_xyzw
     from ccf_ros.offline.fastcdr import read_imu, read_mag
     from ccf_ros.offline.play import load_messages
 
     _, messages = load_messages(bag, [IMU, MAG])
+    if imu_first_after_silence:
+        mags = [i for i, m in enumerate(messages) if m[1] == MAG]
+        back = next(b for a, b in zip(mags, mags[1:], strict=False) if b - a > 100)
+        assert messages[back + 1][1] == IMU
+        messages[back], messages[back + 1] = messages[back + 1], messages[back]
     eng = ImuEngine(*build({}, strict=False))
     t_out, q_out = [], []
     for _, topic, raw in messages:
@@ -456,10 +468,6 @@ def _engine_over_bag(bag):
                 t_out.append(t)
                 q_out.append(from_xyzw(*o.orientation_xyzw))
     return np.array(t_out), np.array(q_out)
-
-
-def _angle(q1, q2):
-    return 2 * np.arccos(np.clip(np.abs(np.sum(q1 * q2, axis=1)), 0, 1))
 
 
 def test_live_node_matches_replay_on_fast_rotation(tmp_path):
@@ -478,7 +486,8 @@ def test_live_node_matches_replay_on_fast_rotation(tmp_path):
     t_ref, q_ref = _engine_over_bag(bag)
     assert res.exit_code == 0 and len(res.t_s) == res.n_imu_sent == len(t_ref) > 4000
     np.testing.assert_array_equal(res.t_s, t_ref)
-    assert _angle(res.quat, q_ref).max() < 1e-7
+    diff = np.nonzero(np.any(res.quat != q_ref, axis=1))[0]  # bit for bit: every sample paired as in bag order
+    assert len(diff) == 0, f'first differences at samples {diff[:5]} of {len(q_ref)}; diagnostics {res.diagnostics}'
 
 
 def test_live_node_survives_faults_and_answers_every_sample(faulty_sim):
@@ -494,8 +503,15 @@ def test_live_node_survives_faults_and_answers_every_sample(faulty_sim):
     t_ref, q_ref = _engine_over_bag(path)
     assert len(res.t_s) == res.n_imu_sent == len(t_ref)
     np.testing.assert_array_equal(res.t_s, t_ref)
-    assert _angle(res.quat, q_ref).max() < 1e-7
+    # Bit for bit: pairing as in bag order, also after the start, the 30 s gap and the silent magnetometer. One
+    # exception cannot be helped: when the magnetometer comes back after its silence, the IMU message after its
+    # first sample can overtake it over DDS (nothing waits while it is silent), and is then answered without it.
     d = res.diagnostics
+    if not np.array_equal(res.quat, q_ref):
+        diff = np.nonzero(np.any(res.quat != q_ref, axis=1))[0]
+        _, q_alt = _engine_over_bag(path, imu_first_after_silence=True)
+        assert np.array_equal(res.quat, q_alt), \
+            f'first differences at samples {diff[:5]} of {len(q_ref)}; diagnostics {d}'
     assert d['samples answered'] == str(res.n_imu_sent)
     assert int(d['skipped: skipped_bad_gyro']) == injected['nan_gyro'] + injected['inf_gyro']
     assert int(d['skipped: skipped_stamp']) == injected['dup'] + injected['back']
