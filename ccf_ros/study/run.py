@@ -20,6 +20,7 @@ from . import experiments as ex
 from . import lscf
 from .bode import bode_study
 from .datasets import Dataset, Topics, from_sim, load_bag
+from .labels import CKF, EKF, EULER, FORMULATIONS, LSCF_EULER
 
 
 @dataclass(frozen=True)
@@ -47,18 +48,17 @@ class StudyOptions:
     seed: int = 7
 
     def __post_init__(self) -> None:
-        if not self.long_run_s >= 0:
-            raise ParameterError(f'long_run_s must be >= 0, got {self.long_run_s!r}')
-        if not self.long_run_rate_hz > 0:
-            raise ParameterError(f'long_run_rate_hz must be > 0, got {self.long_run_rate_hz!r}')
-        if self.repetitions < 1:
-            raise ParameterError(f'repetitions must be >= 1, got {self.repetitions!r}')
-        if self.jobs < 0:
-            raise ParameterError(f'jobs must be >= 0 (0: one per CPU), got {self.jobs!r}')
-        if self.lscf_iterations < 1:
-            raise ParameterError(f'lscf_iterations must be >= 1, got {self.lscf_iterations!r}')
-        if self.bode_frequencies < 1:
-            raise ParameterError(f'bode_frequencies must be >= 1, got {self.bode_frequencies!r}')
+        # Written as "ok" conditions so that NaN fails them.
+        for name, ok, rule in (
+            ('long_run_s', self.long_run_s >= 0, '>= 0'),
+            ('long_run_rate_hz', self.long_run_rate_hz > 0, '> 0'),
+            ('repetitions', self.repetitions >= 1, '>= 1'),
+            ('jobs', self.jobs >= 0, '>= 0 (0: one per CPU)'),
+            ('lscf_iterations', self.lscf_iterations >= 1, '>= 1'),
+            ('bode_frequencies', self.bode_frequencies >= 1, '>= 1'),
+        ):
+            if not ok:
+                raise ParameterError(f'{name} must be {rule}, got {getattr(self, name)!r}')
 
 
 #: Gyro bias of the long run (a consumer MEMS gyro): initial N(0, 0.5°/s) per axis, thermal drift of ±0.3°/s over
@@ -84,13 +84,17 @@ def _ignore_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
+#: A pool task: its key in the results, the function, its arguments.
+Task = tuple[str, Callable[..., Any], tuple[Any, ...]]
+
+
 # Task functions run in worker processes; module level so that they pickle.
 def _task_load(path: str, topics: Topics) -> Dataset:
     return load_bag(path, topics)
 
 
-def _task_lscf(kind: str, ds: Dataset, iterations: int) -> dict[str, Any]:
-    fit = lscf.fit_euler(ds, iterations) if kind == 'euler' else lscf.fit_quaternion(ds, iterations)
+def _task_lscf(form: str, ds: Dataset, iterations: int) -> dict[str, Any]:
+    fit = lscf.fit_euler(ds, iterations) if form == EULER else lscf.fit_quaternion(ds, iterations)
     fit['score'] = ex.score(fit['settings'], ds)
     return fit
 
@@ -99,9 +103,7 @@ def _task_long(opts: StudyOptions, label: str) -> dict[str, Any]:
     return ex.long_run(long_run_dataset(opts), label)
 
 
-def _run_pool(
-    jobs: int, tasks: Sequence[tuple[str, Callable[..., Any], tuple[Any, ...]]], desc: str, progress: bool
-) -> dict[str, Any]:
+def _run_pool(jobs: int, tasks: Sequence[Task], desc: str, progress: bool) -> dict[str, Any]:
     """Run ``(key, function, args)`` tasks in a process pool with a progress bar; results by key."""
     from tqdm import tqdm
 
@@ -137,6 +139,96 @@ def _run_pool(
     return results
 
 
+def _lscf_key(form: str, name: str) -> str:
+    return f'lscf_{form}/{name}'
+
+
+def _load_datasets(bags: Sequence[str | Path], topics: Topics, jobs: int, progress: bool) -> list[Dataset]:
+    """The bags' datasets in the order given, with unique names."""
+    loaded = _run_pool(jobs, [(str(b), _task_load, (str(b), topics)) for b in bags], 'loading bags', progress)
+    datasets = [loaded[str(b)] for b in bags]
+    names = [d.name for d in datasets]
+    if len(set(names)) != len(names):
+        # Same folder name in different places: make labels unique.
+        for i, d in enumerate(datasets):
+            d.name = f'{i + 1:02d}_{d.name}'
+    return datasets
+
+
+def _experiment_tasks(datasets: list[Dataset], opts: StudyOptions) -> list[Task]:
+    """Every experiment of every dataset, the long run's filters, the Bode study and the time series."""
+    tasks: list[Task] = []
+    # Longest first, so that two workers finish together.
+    slow_long = (CKF, EKF)
+    if opts.long_run_s > 0:
+        tasks += [(f'long/{label}', _task_long, (opts, label)) for label in slow_long]
+    for d in datasets:
+        if opts.lscf:
+            tasks += [(_lscf_key(form, d.name), _task_lscf, (form, d, opts.lscf_iterations)) for form in FORMULATIONS]
+        tasks.append((f'grid/{d.name}', ex.gain_grid, (d,)))
+        tasks.append((f'methods/{d.name}', ex.methods, (d,)))
+        tasks.append((f'alpha/{d.name}', ex.alpha_sweep, (d,)))
+        tasks.append((f'sensitivity/{d.name}', ex.default_sensitivity, (d,)))
+    if opts.long_run_s > 0:
+        tasks += [(f'long/{label}', _task_long, (opts, label)) for label in ex.LONG_RUN_FILTERS if label not in slow_long]
+    tasks.append(('bode', bode_study, (datasets[0].rate_hz, opts.bode_frequencies)))
+    tasks.append(('timeseries', ex.time_series, (datasets[0],)))
+    return tasks
+
+
+def _leave_one_out(datasets: list[Dataset], res: dict[str, Any], jobs: int, progress: bool) -> dict[str, Any]:
+    """Each dataset scored with the LSE gains pooled from the others' fits; keys ``form/name``."""
+    fits = {form: {d.name: res[_lscf_key(form, d.name)] for d in datasets} for form in FORMULATIONS}
+    tasks: list[Task] = [
+        (f'{form}/{d.name}', ex.score, (lscf.pooled_settings(form, [f for n, f in fits[form].items() if n != d.name]), d))
+        for form in FORMULATIONS
+        for d in datasets
+    ]
+    return _run_pool(jobs, tasks, 'LSE leave-one-out', progress)
+
+
+def _collect(
+    datasets: list[Dataset], res: dict[str, Any], loo: dict[str, Any] | None, timing: dict[str, Any],
+    opts: StudyOptions, jobs: int,
+) -> dict[str, Any]:
+    """The study's results from the tasks' (``res``; ``loo``: leave-one-out scores, None if not run)."""
+
+    def per_dataset(experiment: str) -> dict[str, Any]:
+        return {d.name: res[f'{experiment}/{d.name}'] for d in datasets}
+
+    out: dict[str, Any] = {
+        'datasets': [
+            {'name': d.name, 'samples': len(d.t_s), 'rate_hz': d.rate_hz, 'duration_s': d.duration_s,
+             'scored': int(d.mask.sum())}
+            for d in datasets
+        ],
+        'grid': per_dataset('grid'),
+        'alpha': per_dataset('alpha'),
+        'sensitivity': per_dataset('sensitivity'),
+        'methods': per_dataset('methods'),
+        'bode': res['bode'],
+        'timeseries': res['timeseries'],
+        'compute_time': timing,
+        'options': opts.__dict__ | {'jobs': jobs},
+    }
+    if opts.lscf:
+        out['lscf'] = {form: {d.name: res[_lscf_key(form, d.name)] for d in datasets} for form in FORMULATIONS}
+        for d in datasets:
+            out['methods'][d.name][LSCF_EULER] = out['lscf'][EULER][d.name]['score']
+        if loo is not None:
+            for form in FORMULATIONS:
+                for d in datasets:
+                    out['lscf'][form][d.name]['loo_score'] = loo[f'{form}/{d.name}']
+    if opts.long_run_s > 0:
+        out['long_run'] = {
+            'duration_s': opts.long_run_s,
+            'rate_hz': opts.long_run_rate_hz,
+            'model': dict(LONG_RUN_BIAS, rot_scale=0.5, rest_s=30.0, seed=opts.seed),
+            'filters': {label: res[f'long/{label}'] for label in ex.LONG_RUN_FILTERS},
+        }
+    return out
+
+
 def run_study(
     bags: Sequence[str | Path],
     opts: StudyOptions | None = None,
@@ -154,80 +246,13 @@ def run_study(
     if opts.lscf and importlib.util.find_spec('scipy') is None:
         # Before the slow part, not after: the fit needs scipy, the rest of the study does not.
         raise CcfError('the LSCF fit needs scipy: pip install "ccf_ros[study]", or pass --no-lscf')
-    loaded = _run_pool(jobs, [(str(b), _task_load, (str(b), topics)) for b in bags], 'loading bags', progress)
-    datasets = [loaded[str(b)] for b in bags]
-    names = [d.name for d in datasets]
-    if len(set(names)) != len(names):
-        # Same folder name in different places: make labels unique.
-        for i, d in enumerate(datasets):
-            d.name = f'{i + 1:02d}_{d.name}'
-
-    tasks: list[tuple[str, Callable[..., Any], tuple[Any, ...]]] = []
-    # Longest first, so that two workers finish together.
-    if opts.long_run_s > 0:
-        for label in ('CKF', 'EKF'):
-            tasks.append((f'long/{label}', _task_long, (opts, label)))
-    for d in datasets:
-        if opts.lscf:
-            tasks.append((f'lscf_euler/{d.name}', _task_lscf, ('euler', d, opts.lscf_iterations)))
-            tasks.append((f'lscf_quaternion/{d.name}', _task_lscf, ('quaternion', d, opts.lscf_iterations)))
-        tasks.append((f'grid/{d.name}', ex.gain_grid, (d,)))
-        tasks.append((f'methods/{d.name}', ex.methods, (d,)))
-        tasks.append((f'alpha/{d.name}', ex.alpha_sweep, (d,)))
-        tasks.append((f'sensitivity/{d.name}', ex.default_sensitivity, (d,)))
-    if opts.long_run_s > 0:
-        for label in ex.LONG_RUN_FILTERS:
-            if label not in ('CKF', 'EKF'):
-                tasks.append((f'long/{label}', _task_long, (opts, label)))
-    tasks.append(('bode', bode_study, (datasets[0].rate_hz, opts.bode_frequencies)))
-    tasks.append(('timeseries', ex.time_series, (datasets[0],)))
-    res = _run_pool(jobs, tasks, 'experiments', progress)
-
-    if opts.lscf and len(datasets) > 1:
-        fits = {form: {d.name: res[f'lscf_{form}/{d.name}'] for d in datasets} for form in ('euler', 'quaternion')}
-        loo_tasks = [
-            (f'{form}/{d.name}', ex.score, (lscf.pooled_settings(form, [f for n, f in fits[form].items() if n != d.name]), d))
-            for form in ('euler', 'quaternion')
-            for d in datasets
-        ]
-        res_loo = _run_pool(jobs, loo_tasks, 'LSE leave-one-out', progress)
-
+    datasets = _load_datasets(bags, topics, jobs, progress)
+    res = _run_pool(jobs, _experiment_tasks(datasets, opts), 'experiments', progress)
+    loo = _leave_one_out(datasets, res, jobs, progress) if opts.lscf and len(datasets) > 1 else None
     # Timing alone, after the pool: nothing of ours competes for the CPU.
     if progress:
         print(f'timing CCF, EKF, CKF ({opts.repetitions} repetitions) ...', file=sys.stderr)
     timing = ex.compute_time(datasets[0], opts.repetitions)
-
-    out: dict[str, Any] = {
-        'datasets': [
-            {'name': d.name, 'samples': len(d.t_s), 'rate_hz': d.rate_hz, 'duration_s': d.duration_s,
-             'scored': int(d.mask.sum())}
-            for d in datasets
-        ],
-        'grid': {d.name: res[f'grid/{d.name}'] for d in datasets},
-        'alpha': {d.name: res[f'alpha/{d.name}'] for d in datasets},
-        'sensitivity': {d.name: res[f'sensitivity/{d.name}'] for d in datasets},
-        'methods': {d.name: res[f'methods/{d.name}'] for d in datasets},
-        'bode': res['bode'],
-        'timeseries': res['timeseries'],
-        'compute_time': timing,
-        'options': opts.__dict__ | {'jobs': jobs},
-    }
-    if opts.lscf:
-        out['lscf'] = {
-            form: {d.name: res[f'lscf_{form}/{d.name}'] for d in datasets} for form in ('euler', 'quaternion')
-        }
-        for d in datasets:
-            out['methods'][d.name]['LSCF (euler)'] = out['lscf']['euler'][d.name]['score']
-        if len(datasets) > 1:
-            for form in ('euler', 'quaternion'):
-                for d in datasets:
-                    out['lscf'][form][d.name]['loo_score'] = res_loo[f'{form}/{d.name}']
-    if opts.long_run_s > 0:
-        out['long_run'] = {
-            'duration_s': opts.long_run_s,
-            'rate_hz': opts.long_run_rate_hz,
-            'model': dict(LONG_RUN_BIAS, rot_scale=0.5, rest_s=30.0, seed=opts.seed),
-            'filters': {label: res[f'long/{label}'] for label in ex.LONG_RUN_FILTERS},
-        }
+    out = _collect(datasets, res, loo, timing, opts, jobs)
     out['wall_time_s'] = time.time() - t_start
     return out
