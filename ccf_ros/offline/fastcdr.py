@@ -9,15 +9,15 @@ float64 fields. Anything else (ROS 1, big-endian) goes through rosbags.
 from __future__ import annotations
 
 import struct
-from typing import cast
+
+from .messages import seconds
 
 Vec3 = tuple[float, float, float]
 
 LITTLE_ENDIAN_CDR = b'\x00\x01'
 _HDR = struct.Struct('<iiI')  # sec, nanosec (as int; < 1e9 fits), frame_id length
 _F3 = struct.Struct('<3d')
-_F4 = struct.Struct('<4d')
-_F9 = struct.Struct('<9d')
+_F13 = struct.Struct('<13d')  # orientation (4) and orientation_covariance (9), adjacent
 
 
 def _body(raw: bytes | bytearray | memoryview, pos: int = 4) -> tuple[int, int, int]:
@@ -31,15 +31,15 @@ def _body(raw: bytes | bytearray | memoryview, pos: int = 4) -> tuple[int, int, 
 def read_imu(raw: bytes | bytearray | memoryview) -> tuple[float, int, Vec3, Vec3]:
     """Stamp (s), offset of ``orientation``, angular velocity (rad/s), linear acceleration (m/s²) of an Imu."""
     sec, nsec, off = _body(raw)
-    gyr = cast(Vec3, _F3.unpack_from(raw, off + ANGULAR_VELOCITY))
-    acc = cast(Vec3, _F3.unpack_from(raw, off + LINEAR_ACCELERATION))
-    return sec + nsec * 1e-9, off, gyr, acc
+    # Annotated, not cast(): typing.cast is a function call per message.
+    gyr: Vec3 = _F3.unpack_from(raw, off + ANGULAR_VELOCITY)
+    acc: Vec3 = _F3.unpack_from(raw, off + LINEAR_ACCELERATION)
+    return seconds(sec, nsec), off, gyr, acc
 
 
 def patch_imu(buf: bytearray, off: int, xyzw: tuple[float, float, float, float], cov: tuple[float, ...]) -> None:
     """Write orientation (x, y, z, w) and orientation_covariance (9) into a serialized Imu at ``off``."""
-    _F4.pack_into(buf, off, *xyzw)
-    _F9.pack_into(buf, off + 32, *cov)
+    _F13.pack_into(buf, off, *xyzw, *cov)
 
 
 #: Offsets of angular_velocity and linear_acceleration from ``orientation`` (the offset :func:`read_imu` returns):
@@ -59,7 +59,8 @@ def patch_imu_vectors(buf: bytearray, off: int, gyr: Vec3 | None, acc: Vec3 | No
 def read_mag(raw: bytes | bytearray | memoryview) -> tuple[float, Vec3]:
     """Stamp (s) and magnetic field of a serialized MagneticField."""
     sec, nsec, off = _body(raw)
-    return sec + nsec * 1e-9, cast(Vec3, _F3.unpack_from(raw, off))
+    field: Vec3 = _F3.unpack_from(raw, off)
+    return seconds(sec, nsec), field
 
 
 def vector3_stamped(imu_raw: bytes | bytearray | memoryview, imu_off: int, v: Vec3) -> bytes:
