@@ -9,28 +9,36 @@ from __future__ import annotations
 
 import shutil
 import sqlite3
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..core.pairing import MagPairer
 from ..core.quaternion import from_xyzw
 from ..errors import BagError
+from .messages import stamp_s
+
+if TYPE_CHECKING:  # rosbags is imported when a bag is opened, not with this module
+    from rosbags.highlevel import AnyReader
+    from rosbags.interfaces import Connection
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys.store import Typestore
 
 __all__ = [
     'BagError', 'BagWriter', 'ImuArrays', 'connections_for', 'deserialize', 'in_bag_order', 'open_bag', 'open_writer',
-    'read_bools', 'read_imu_arrays', 'read_messages', 'read_orientations', 'staged', 'stamp_s', 'typestore', 'unreadable',
+    'read_bools', 'read_imu_arrays', 'read_messages', 'read_orientations', 'read_topic', 'refuse_existing', 'ros1_to_cdr',
+    'staged', 'stamp_s', 'typestore', 'unreadable',
 ]
 
 #: Storage plugins by the names ``--storage`` takes.
 STORAGES = ('mcap', 'sqlite3')
 
 
-def typestore() -> Any:
+def typestore() -> Typestore:
     """The ROS 2 Jazzy type store used for every message we write."""
     from rosbags.typesys import Stores, get_typestore
 
@@ -43,7 +51,7 @@ def unreadable(path: str | Path, err: BaseException) -> BagError:
 
 
 @contextmanager
-def open_bag(path: str | Path) -> Iterator[Any]:
+def open_bag(path: str | Path) -> Iterator[AnyReader]:
     """Open a rosbag2 directory (or its .mcap/.db3 file) or a ROS 1 ``.bag`` as a rosbags ``AnyReader``."""
     from rosbags.highlevel import AnyReader
 
@@ -63,7 +71,9 @@ def open_bag(path: str | Path) -> Iterator[Any]:
         reader.close()
 
 
-def read_messages(reader: Any, path: str | Path, connections: Iterable[Any] | None = None) -> Iterator[Any]:
+def read_messages(
+    reader: AnyReader, path: str | Path, connections: Iterable[Connection] | None = None
+) -> Iterator[tuple[Connection, int, bytes]]:
     """``(connection, t_rec_ns, raw)`` of ``reader.messages(connections)``; a read failure is a :class:`BagError`.
 
     Only the reading is guarded: what the caller does with a message (between two ``next``) is not.
@@ -82,11 +92,20 @@ def read_messages(reader: Any, path: str | Path, connections: Iterable[Any] | No
         yield item
 
 
-def deserialize(reader: Any, raw: bytes | memoryview, msgtype: str, path: str | Path) -> Any:
+def deserialize(reader: AnyReader, raw: bytes | memoryview, msgtype: str, path: str | Path) -> Any:
     """``reader.deserialize(raw, msgtype)``; a message that does not decode is a :class:`BagError`."""
     try:
-        return reader.deserialize(raw, msgtype)
+        return reader.deserialize(raw, msgtype)  # type: ignore[arg-type]  # rosbags reads memoryviews too
     except Exception as err:
+        raise unreadable(path, err) from err
+
+
+def ros1_to_cdr(store: Typestore, raw: bytes | memoryview, msgtype: str, path: str | Path) -> memoryview:
+    """A ROS 1 message's bytes as CDR (with ``store``'s definition of ``msgtype``); one that does not decode is a
+    :class:`BagError`."""
+    try:
+        return store.ros1_to_cdr(raw, msgtype)
+    except Exception as err:  # rosbags' conversion of a message that does not decode
         raise unreadable(path, err) from err
 
 
@@ -97,19 +116,28 @@ _WRITE_ERRORS = (OSError, sqlite3.Error)
 class BagWriter:
     """A rosbags rosbag2 ``Writer`` whose file-system failures are :class:`BagError` (see :func:`open_writer`)."""
 
-    def __init__(self, writer: Any, path: Path) -> None:
+    def __init__(self, writer: Writer, path: Path) -> None:
         self.writer = writer
         self.path = path
 
-    def add_connection(self, topic: str, msgtype: str, **kwargs: Any) -> Any:
+    def add_connection(self, topic: str, msgtype: str, **kwargs: Any) -> Connection:
         try:
             return self.writer.add_connection(topic, msgtype, **kwargs)
         except _WRITE_ERRORS as err:
             raise self._error(err) from err
 
-    def write(self, connection: Any, t_ns: int, data: bytes | memoryview) -> None:
+    def write(self, connection: Connection, t_ns: int, data: bytes | memoryview) -> None:
         try:
             self.writer.write(connection, t_ns, data)
+        except _WRITE_ERRORS as err:
+            raise self._error(err) from err
+
+    @contextmanager
+    def guarded(self) -> Iterator[Callable[[Connection, int, bytes | memoryview], None]]:
+        """rosbags' own ``write``, for a tight loop of writes under one guard instead of one per message: a
+        file-system failure in the ``with`` body is a :class:`BagError` (keep other I/O out of the body)."""
+        try:
+            yield self.writer.write
         except _WRITE_ERRORS as err:
             raise self._error(err) from err
 
@@ -121,9 +149,16 @@ def _remove(path: Path) -> None:
     shutil.rmtree(path) if path.is_dir() and not path.is_symlink() else path.unlink()
 
 
+def refuse_existing(path: Path, overwrite: bool) -> None:
+    """:class:`BagError` if output ``path`` exists and may not be replaced (check before any slow work)."""
+    if path.exists() and not overwrite:
+        raise BagError(f'{path} exists; pass --overwrite to replace it')
+
+
 @contextmanager
 def staged(path: str | Path) -> Iterator[Path]:
-    """Where to write a new bag that becomes ``path`` only when complete: an error or Ctrl-C leaves no half bag.
+    """Where to write a new bag (or file) that becomes ``path`` only when complete: an error or Ctrl-C leaves no
+    half bag. The one atomic-write helper of the offline tools.
 
     Yields ``.NAME.partial/NAME`` next to ``path`` (the storage file is named after the bag, ``NAME.mcap``); when
     the ``with`` body succeeds it replaces ``path`` (if that exists), otherwise the staging directory is removed.
@@ -179,12 +214,9 @@ def open_writer(path: str | Path, storage: str = 'mcap') -> Iterator[BagWriter]:
         raise BagError(f'{path}: cannot write bag: {type(err).__name__}: {err}') from err
 
 
-def stamp_s(header: Any) -> float:
-    """Header stamp as float seconds."""
-    return header.stamp.sec + header.stamp.nanosec * 1e-9
-
-
-def connections_for(reader: Any, topic: str, required: bool = True, msgtype: str | None = None) -> list[Any]:
+def connections_for(
+    reader: AnyReader, topic: str, required: bool = True, msgtype: str | None = None
+) -> list[Connection]:
     """Connections of ``topic``; :class:`BagError` listing the bag's topics if required and absent, or naming the
     type if ``msgtype`` is given and the topic has another."""
     conns = [c for c in reader.connections if c.topic == topic]
@@ -197,7 +229,7 @@ def connections_for(reader: Any, topic: str, required: bool = True, msgtype: str
     return conns
 
 
-def in_bag_order(reader: Any, conns: Iterable[Any]) -> list[Any]:
+def in_bag_order(reader: AnyReader, conns: Iterable[Connection]) -> list[Connection]:
     """``conns`` in the order of ``reader.connections``.
 
     rosbags' ROS 1 reader yields messages of equal receive time in the order of the connections it is given:
@@ -274,24 +306,27 @@ def orientation_of(msg: Any, msgtype: str) -> tuple[float, float, float, float]:
     return from_xyzw(o.x, o.y, o.z, o.w)
 
 
+def read_topic(path: str | Path, topic: str, msgtype: str | None = None) -> Iterator[tuple[Connection, int, Any]]:
+    """``(connection, t_rec_ns, message)`` of every message of ``topic`` (required; of type ``msgtype`` if given),
+    deserialized; the bag is open while the caller iterates."""
+    with open_bag(path) as reader:
+        for conn, t_rec, raw in read_messages(reader, path, connections_for(reader, topic, msgtype=msgtype)):
+            yield conn, t_rec, deserialize(reader, raw, conn.msgtype, path)
+
+
 def read_orientations(path: str | Path, topic: str) -> tuple[np.ndarray, np.ndarray]:
     """Header stamps ``(N,)`` s and orientations ``(N, 4)`` ``[w, x, y, z]`` of a topic."""
     t, q = [], []
-    with open_bag(path) as reader:
-        conns = connections_for(reader, topic)
-        for conn, _, raw in read_messages(reader, path, conns):
-            msg = deserialize(reader, raw, conn.msgtype, path)
-            q.append(orientation_of(msg, conn.msgtype))
-            t.append(stamp_s(msg.header))
+    for conn, _, msg in read_topic(path, topic):
+        q.append(orientation_of(msg, conn.msgtype))
+        t.append(stamp_s(msg.header))
     return np.array(t, dtype=float), np.array(q, dtype=float).reshape(-1, 4)
 
 
 def read_bools(path: str | Path, topic: str) -> tuple[np.ndarray, np.ndarray]:
     """Receive times ``(N,)`` s (bag time, std_msgs has no header) and values ``(N,)`` of a Bool topic."""
     t, v = [], []
-    with open_bag(path) as reader:
-        conns = connections_for(reader, topic, msgtype='std_msgs/msg/Bool')
-        for conn, ts, raw in read_messages(reader, path, conns):
-            t.append(ts * 1e-9)
-            v.append(bool(deserialize(reader, raw, conn.msgtype, path).data))
+    for _, t_rec, msg in read_topic(path, topic, 'std_msgs/msg/Bool'):
+        t.append(t_rec * 1e-9)
+        v.append(bool(msg.data))
     return np.array(t, dtype=float), np.array(v, dtype=bool)

@@ -10,13 +10,16 @@ import importlib
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..errors import BagError, ParameterError
-from .bagio import open_bag, read_messages, unreadable
+from .bagio import open_bag, read_messages, ros1_to_cdr
+
+if TYPE_CHECKING:  # rclpy is imported when messages are published, not with this module
+    from rclpy.node import Node
 
 
-def msg_class(msgtype: str) -> Any:
+def msg_class(msgtype: str) -> type[Any]:
     """rclpy message class of ``pkg/msg/Name``."""
     pkg, _, name = msgtype.split('/')
     try:
@@ -35,17 +38,13 @@ def load_messages(bag: str | Path, topics: Sequence[str] | None = None) -> tuple
         ros1 = not reader.is2
         msgs = []
         for c, t, raw in read_messages(reader, bag, conns):
-            if ros1:
-                try:
-                    raw = reader.typestore.ros1_to_cdr(raw, c.msgtype)
-                except Exception as err:  # rosbags' conversion of a message that does not decode
-                    raise unreadable(bag, err) from err
-            msgs.append((t, c.topic, bytes(raw)))
+            cdr = ros1_to_cdr(reader.typestore, raw, c.msgtype, bag) if ros1 else raw
+            msgs.append((t, c.topic, bytes(cdr)))
     return types, msgs
 
 
 def play(
-    node: Any,
+    node: Node,
     types: dict[str, str],
     messages: list[tuple[int, str, bytes]],
     *,

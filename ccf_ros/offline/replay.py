@@ -2,6 +2,12 @@
 
 ``/imu/data`` is the input Imu with orientation and covariance filled in and, as the node publishes it, the
 angular velocity and linear acceleration the engine gives (``bias_corrected_rate``, ``remove_gravity_vector``).
+
+How it runs: :func:`replay` opens the input bag and a staged output bag; :class:`_Replayer` reads the messages in
+bag order and sends each IMU or magnetometer message down one of two paths with the same steps (:class:`_Path`):
+:class:`_FastCdrPath` reads and patches little-endian CDR bytes (rosbag2), :class:`_MessagePath` deserializes
+anything else (ROS 1, big-endian CDR) with rosbags. Messages are handled in blocks of :data:`BLOCK_SIZE`: the
+filter runs over a block's samples in a tight loop, then the block's answers and copies are written, in order.
 """
 
 from __future__ import annotations
@@ -9,13 +15,15 @@ from __future__ import annotations
 import struct
 import sys
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
+from enum import Enum
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, NamedTuple, Protocol, TypeVar
 
 import numpy as np
 
-from ..engine import ImuEngine
+from ..engine import ImuEngine, Output
 from .bagio import (
     BagError,
     BagWriter,
@@ -25,11 +33,27 @@ from .bagio import (
     open_bag,
     open_writer,
     read_messages,
+    refuse_existing,
+    ros1_to_cdr,
     staged,
     typestore,
     unreadable,
 )
 from .fastcdr import LITTLE_ENDIAN_CDR, patch_imu, patch_imu_vectors, read_imu, read_mag, vector3_stamped
+from .messages import fill_imu, stamp_s
+
+if TYPE_CHECKING:  # rosbags is imported when a bag is opened, not with this module
+    from rosbags.highlevel import AnyReader
+    from rosbags.interfaces import Connection
+    from rosbags.typesys.store import Typestore
+
+IMU = 'sensor_msgs/msg/Imu'
+MAGNETIC_FIELD = 'sensor_msgs/msg/MagneticField'
+VECTOR3_STAMPED = 'geometry_msgs/msg/Vector3Stamped'
+
+#: Messages read before the filter runs over them and their answers are written. The filter sees the same calls in
+#: the same order as message by message, but runs in a tight loop.
+BLOCK_SIZE = 2048
 
 
 @dataclass
@@ -50,6 +74,15 @@ class ReplaySummary:
             f'samples in {self.n_in}, out {self.n_out}, skipped: {skipped}; gyro-only (bad accelerometer) '
             f'{self.n_no_acc}, no heading (bad magnetometer) {self.n_no_mag}; {rate:,.0f} samples/s'
         )
+
+
+class Topics(NamedTuple):
+    """The topics replay reads (``mag`` None: none) and writes."""
+
+    imu: str = '/imu/data_raw'
+    mag: str | None = '/imu/mag'
+    out_imu: str = '/imu/data'
+    out_bias: str = '/imu/gyro_bias'
 
 
 def replay(
@@ -75,170 +108,247 @@ def replay(
             ``overwrite``. Anything the engine raises passes unchanged (it is a bug, not a bad bag).
     """
     bag_out = Path(bag_out)
-    if bag_out.exists() and not overwrite:
-        raise BagError(f'{bag_out} exists; pass --overwrite to replace it')
+    refuse_existing(bag_out, overwrite)
     if bag_out.resolve() == Path(bag_in).resolve():
         raise BagError('output bag must differ from the input bag')
-    summary = ReplaySummary()
+    topics = Topics(imu_topic, mag_topic, out_imu_topic, out_bias_topic)
     t0 = time.perf_counter()
     with staged(bag_out) as tmp, open_bag(bag_in) as reader, open_writer(tmp, storage) as writer:
-        summary.n_out = _replay(reader, writer, engine, bag_in, imu_topic, mag_topic, out_imu_topic, out_bias_topic,
-                                copy_input, progress)
-    summary.n_in = engine.n_in
-    summary.skipped = engine.skipped_by_reason()
-    summary.n_no_acc = engine.n_no_acc
-    summary.n_no_mag = engine.n_no_mag
-    summary.wall_s = time.perf_counter() - t0
-    return summary
+        n_out = _Replayer(reader, writer, engine, bag_in, topics, copy_input).run(progress)
+    return ReplaySummary(
+        n_in=engine.n_in,
+        n_out=n_out,
+        skipped=engine.skipped_by_reason(),
+        n_no_acc=engine.n_no_acc,
+        n_no_mag=engine.n_no_mag,
+        wall_s=time.perf_counter() - t0,
+    )
 
 
-def _replay(
-    reader: Any,
-    writer: BagWriter,
-    engine: ImuEngine,
-    bag_in: str | Path,
-    imu_topic: str,
-    mag_topic: str | None,
-    out_imu_topic: str,
-    out_bias_topic: str,
-    copy_input: bool,
-    progress: bool | None,
-) -> int:
-    """The message loop of :func:`replay`; returns the number of IMU messages written.
+@dataclass(frozen=True)
+class _Outputs:
+    """The output bag's connections: the answers, and the input connections copied (by input connection id)."""
+
+    writer: BagWriter
+    imu: Connection
+    bias: Connection
+    copies: dict[int, Connection]
+
+    @classmethod
+    def add(cls, writer: BagWriter, reader: AnyReader, store: Typestore, topics: Topics, copy_input: bool) -> _Outputs:
+        imu = writer.add_connection(topics.out_imu, IMU, typestore=store)
+        bias = writer.add_connection(topics.out_bias, VECTOR3_STAMPED, typestore=store)
+        copied = [c for c in reader.connections if c.topic not in (topics.out_imu, topics.out_bias)] if copy_input else []
+        copies = {c.id: writer.add_connection(c.topic, c.msgtype, typestore=store) for c in copied}
+        return cls(writer, imu, bias, copies)
+
+
+Answer = TypeVar('Answer')  # what a path needs to serialize the engine's answer to an IMU sample
+#: A serialized answer: the Imu and the Vector3Stamped of the gyro bias, CDR.
+Serialized = tuple[bytes | memoryview, bytes | memoryview]
+
+
+class _Path(Protocol[Answer]):
+    """One way through replay for an IMU or magnetometer message, from its bytes as read from the bag to the
+    bytes of the answer: the steps :class:`_Replayer` calls. A message that cannot be read is a :class:`BagError`.
+    """
+
+    def on_imu(self, raw: bytes) -> Answer | None:
+        """Feed an IMU sample to the engine; None: the engine gives no answer (nothing is written)."""
+        ...
+
+    def on_mag(self, raw: bytes) -> None:
+        """Feed a magnetometer sample to the engine."""
+        ...
+
+    def serialize(self, answer: Answer) -> Serialized:
+        """The messages that answer an IMU sample."""
+        ...
+
+
+class _FastCdrPath:
+    """Little-endian CDR (rosbag2): the few fields needed are read from the bytes and the answer is patched into a
+    copy of them; no deserialisation. Answers are the input's bytes, the engine's output and the offset of the
+    Imu's ``orientation``."""
+
+    def __init__(self, engine: ImuEngine, bag: str | Path) -> None:
+        self._on_imu = engine.on_imu
+        self._on_mag = engine.on_mag
+        self._bag = bag
+
+    def on_imu(self, raw: bytes) -> tuple[bytes, Output, int] | None:
+        try:
+            t, off, gyr, acc = read_imu(raw)
+        except struct.error as err:  # CDR bytes shorter than an Imu
+            raise unreadable(self._bag, err) from err
+        out = self._on_imu(t, gyr, acc)
+        return None if out is None else (raw, out, off)
+
+    def on_mag(self, raw: bytes) -> None:
+        try:
+            t, f = read_mag(raw)
+        except struct.error as err:
+            raise unreadable(self._bag, err) from err
+        self._on_mag(t, f)
+
+    def serialize(self, answer: tuple[bytes, Output, int]) -> Serialized:
+        raw, out, off = answer
+        buf = bytearray(raw)
+        patch_imu(buf, off, out.orientation_xyzw, out.covariance)
+        if out.angular_velocity is not None or out.linear_acceleration is not None:
+            patch_imu_vectors(buf, off, out.angular_velocity, out.linear_acceleration)
+        return memoryview(buf), vector3_stamped(raw, off, out.bias)
+
+
+class _MessagePath:
+    """Anything else (ROS 1, big-endian CDR): rosbags deserializes the message; the answer is filled into it and it
+    is serialized again (same header and fields). Answers are the message and the engine's output."""
+
+    def __init__(self, engine: ImuEngine, reader: AnyReader, store: Typestore, bag: str | Path) -> None:
+        self._on_imu = engine.on_imu
+        self._on_mag = engine.on_mag
+        self._reader = reader
+        self._serialize = store.serialize_cdr
+        self._bag = bag
+        # rosbags' message classes are generated: their fields are not known statically.
+        types: dict[str, Any] = store.types
+        # Serialized right away, so one covariance buffer and one bias message serve every sample.
+        self._covariance = np.zeros(9)
+        self._bias_vector = types['geometry_msgs/msg/Vector3'](x=0.0, y=0.0, z=0.0)
+        self._bias = types[VECTOR3_STAMPED](header=None, vector=self._bias_vector)
+
+    def on_imu(self, raw: bytes) -> tuple[Any, Output] | None:
+        msg = deserialize(self._reader, raw, IMU, self._bag)
+        g, a = msg.angular_velocity, msg.linear_acceleration
+        out = self._on_imu(stamp_s(msg.header), (g.x, g.y, g.z), (a.x, a.y, a.z))
+        return None if out is None else (msg, out)
+
+    def on_mag(self, raw: bytes) -> None:
+        msg = deserialize(self._reader, raw, MAGNETIC_FIELD, self._bag)
+        f = msg.magnetic_field
+        self._on_mag(stamp_s(msg.header), (f.x, f.y, f.z))
+
+    def serialize(self, answer: tuple[Any, Output]) -> Serialized:
+        msg, out = answer
+        self._covariance[:] = out.covariance
+        fill_imu(msg, out, self._covariance)
+        b = self._bias_vector
+        b.x, b.y, b.z = out.bias
+        self._bias.header = msg.header
+        return self._serialize(msg, IMU), self._serialize(self._bias, VECTOR3_STAMPED)
+
+
+class Kind(Enum):
+    """What a message of a block is for."""
+
+    IMU = 'imu'  #: filtered and answered
+    MAG = 'mag'  #: filtered
+    COPY = 'copy'  #: written to the output as it is (``copy_input``)
+
+
+# Module globals: looking up Kind.IMU costs an enum attribute lookup per message.
+_IMU, _MAG, _COPY = Kind.IMU, Kind.MAG, Kind.COPY
+
+#: One message of a block: its kind; its :class:`_Path` (None for a copy); its receive time, ns; its bytes as read
+#: (for a copy: the output connection and the CDR bytes).
+_Entry = tuple[Kind, Any, int, Any]
+
+
+class _Replayer:
+    """The message loop of :func:`replay`: reads the input in blocks, feeds the engine, writes the output.
 
     Only reading (rosbags, and the CDR bytes of the fast path) and writing are guarded: they raise
     :class:`BagError`. The engine runs unguarded.
     """
-    ts = typestore()
-    Imu = ts.types['sensor_msgs/msg/Imu']
-    Vector3 = ts.types['geometry_msgs/msg/Vector3']
-    Vector3Stamped = ts.types['geometry_msgs/msg/Vector3Stamped']
-    serialize = ts.serialize_cdr
-    imu_conns = connections_for(reader, imu_topic, msgtype='sensor_msgs/msg/Imu')
-    mag_conns = (connections_for(reader, mag_topic, required=False, msgtype='sensor_msgs/msg/MagneticField')
-                 if mag_topic else [])
-    conns = list(reader.connections) if copy_input else in_bag_order(reader, imu_conns + mag_conns)
-    n_total = sum(c.msgcount for c in imu_conns)
-    is_ros1 = not reader.is2
-    w_imu = writer.add_connection(out_imu_topic, Imu.__msgtype__, typestore=ts)
-    w_bias = writer.add_connection(out_bias_topic, Vector3Stamped.__msgtype__, typestore=ts)
-    w_copy: dict[int, Any] = {}
-    if copy_input:
-        for c in reader.connections:
-            if c.topic in (out_imu_topic, out_bias_topic):
-                continue
-            w_copy[c.id] = writer.add_connection(c.topic, c.msgtype, typestore=ts)
-    from tqdm import tqdm
 
-    bar = tqdm(
-        total=n_total,
-        unit='msg',
-        disable=(not sys.stderr.isatty()) if progress is None else not progress,
-        desc='replay',
-        mininterval=0.5,
-    )
-    imu_ids = {c.id for c in imu_conns}
-    mag_ids = {c.id for c in mag_conns}
-    on_imu = engine.on_imu
-    # Serialized right away, so one buffer and one bias message serve every sample.
-    cov_buf = np.zeros(9)
-    bias_vec = Vector3(x=0.0, y=0.0, z=0.0)
-    bias_msg = Vector3Stamped(header=None, vector=bias_vec)
-    imu_type, bias_type = Imu.__msgtype__, Vector3Stamped.__msgtype__
-    write = writer.write
-    on_mag = engine.on_mag
-    n_out = 0
-    # Messages are handled in blocks: read a block, filter it, serialize and write it. The filter sees the same
-    # calls in the same order as message by message, but runs in a tight loop.
-    block: list[tuple[int, int, Any]] = []
+    def __init__(
+        self, reader: AnyReader, writer: BagWriter, engine: ImuEngine, bag: str | Path, topics: Topics,
+        copy_input: bool,
+    ) -> None:
+        imu_conns = connections_for(reader, topics.imu, msgtype=IMU)
+        mag_conns = connections_for(reader, topics.mag, required=False, msgtype=MAGNETIC_FIELD) if topics.mag else []
+        self._reader = reader
+        self._bag = bag
+        self._inputs = list(reader.connections) if copy_input else in_bag_order(reader, imu_conns + mag_conns)
+        #: Input connection id -> what its messages are for (copies aside).
+        self._kinds = {c.id: _MAG for c in mag_conns} | {c.id: _IMU for c in imu_conns}
+        self._n_imu = sum(c.msgcount for c in imu_conns)
+        self._store = typestore()
+        self._outputs = _Outputs.add(writer, reader, self._store, topics, copy_input)
+        self._fast = _FastCdrPath(engine, bag)
+        self._message = _MessagePath(engine, reader, self._store, bag)
 
-    def flush() -> None:
-        nonlocal n_out
-        outs = []
-        for kind, _, msg in block:
-            if kind == 3:
-                try:
-                    t, off, g, a = read_imu(msg)
-                except struct.error as err:  # CDR bytes shorter than an Imu
-                    raise unreadable(bag_in, err) from err
-                outs.append((on_imu(t, g, a), off))
-            elif kind == 4:
-                try:
-                    t, f = read_mag(msg)
-                except struct.error as err:
-                    raise unreadable(bag_in, err) from err
-                on_mag(t, f)
-            elif kind == 0:
-                h = msg.header
-                g = msg.angular_velocity
-                a = msg.linear_acceleration
-                outs.append(on_imu(h.stamp.sec + h.stamp.nanosec * 1e-9, (g.x, g.y, g.z), (a.x, a.y, a.z)))  # type: ignore[arg-type]
-            elif kind == 1:
-                h = msg.header
-                f = msg.magnetic_field
-                on_mag(h.stamp.sec + h.stamp.nanosec * 1e-9, (f.x, f.y, f.z))
-        n_imu = len(outs)
-        it: Any = iter(outs)
-        for kind, t_rec, msg in block:
-            if kind == 3:
-                out, off = next(it)
-                if out is None:
-                    continue
-                buf = bytearray(msg)
-                patch_imu(buf, off, out.orientation_xyzw, out.covariance)
-                # bias_corrected_rate / remove_gravity_vector
-                patch_imu_vectors(buf, off, out.angular_velocity, out.linear_acceleration)
-                write(w_imu, t_rec, memoryview(buf))
-                write(w_bias, t_rec, vector3_stamped(msg, off, out.bias))
-                n_out += 1
-            elif kind == 0:
-                out = next(it)
-                if out is None:
-                    continue
-                # Reuse the deserialized message: same header and fields, orientation filled in.
-                o = msg.orientation
-                o.x, o.y, o.z, o.w = out.orientation_xyzw
-                cov_buf[:] = out.covariance
-                msg.orientation_covariance = cov_buf
-                if out.angular_velocity is not None:
-                    v = msg.angular_velocity
-                    v.x, v.y, v.z = out.angular_velocity
-                if out.linear_acceleration is not None:
-                    v = msg.linear_acceleration
-                    v.x, v.y, v.z = out.linear_acceleration
-                bias_vec.x, bias_vec.y, bias_vec.z = out.bias
-                bias_msg.header = msg.header
-                write(w_imu, t_rec, serialize(msg, imu_type))
-                write(w_bias, t_rec, serialize(bias_msg, bias_type))
-                n_out += 1
-            elif kind == 2:
-                write(msg[0], t_rec, msg[1])
-        block.clear()
-        bar.update(n_imu)
+    def run(self, progress: bool | None) -> int:
+        """Replay every message; returns the number of IMU messages written. ``progress`` None: a bar on a tty."""
+        from tqdm import tqdm
 
-    try:
-        for conn, t_rec, raw in read_messages(reader, bag_in, conns):
+        bar = tqdm(
+            total=self._n_imu,
+            unit='msg',
+            disable=(not sys.stderr.isatty()) if progress is None else not progress,
+            desc='replay',
+            mininterval=0.5,
+        )
+        n_out = 0
+        try:
+            for block in self._blocks():
+                answers, n_imu = self._filter(block)
+                n_out += self._write(block, answers)
+                bar.update(n_imu)
+        finally:
+            bar.close()
+        return n_out
+
+    def _blocks(self) -> Iterator[list[_Entry]]:
+        """The input's messages in bag order, in blocks of about :data:`BLOCK_SIZE` entries: a message to copy, a
+        sample for the filter on the path its bytes call for, or both (a copied IMU or magnetometer message)."""
+        kinds, copies, fast_path, message_path = self._kinds, self._outputs.copies, self._fast, self._message
+        ros1 = not self._reader.is2
+        block: list[_Entry] = []
+        add = block.append
+        for conn, t_rec, raw in read_messages(self._reader, self._bag, self._inputs):
             cid = conn.id
-            if cid in w_copy:
-                if is_ros1:
-                    try:
-                        cdr = ts.ros1_to_cdr(raw, conn.msgtype)
-                    except Exception as err:  # rosbags' conversion of a message that does not decode
-                        raise unreadable(bag_in, err) from err
-                else:
-                    cdr = raw
-                block.append((2, t_rec, (w_copy[cid], cdr)))
-            # Little-endian CDR (rosbag2): read and patch the bytes; otherwise go through rosbags.
-            fast = not is_ros1 and raw[:2] == LITTLE_ENDIAN_CDR
-            if cid in imu_ids:
-                block.append((3, t_rec, raw) if fast
-                             else (0, t_rec, deserialize(reader, raw, conn.msgtype, bag_in)))
-            elif cid in mag_ids:
-                block.append((4, t_rec, raw) if fast
-                             else (1, t_rec, deserialize(reader, raw, conn.msgtype, bag_in)))
-            if len(block) >= 2048:
-                flush()
-        flush()
-    finally:
-        bar.close()
-    return n_out
+            if cid in copies:
+                cdr = ros1_to_cdr(self._store, raw, conn.msgtype, self._bag) if ros1 else raw
+                add((_COPY, None, t_rec, (copies[cid], cdr)))
+            if cid in kinds:
+                fast = not ros1 and raw[:2] == LITTLE_ENDIAN_CDR
+                add((kinds[cid], fast_path if fast else message_path, t_rec, raw))
+            if len(block) >= BLOCK_SIZE:
+                yield block
+                block = []
+                add = block.append
+        yield block
+
+    @staticmethod
+    def _filter(block: list[_Entry]) -> tuple[list[Any], int]:
+        """The engine over a block's samples, in order: per entry the answer of its path (None: none), and the
+        number of IMU samples."""
+        answers: list[Any] = []
+        add = answers.append
+        n_imu = 0
+        for kind, path, _, raw in block:
+            if kind is _IMU:
+                add(path.on_imu(raw))
+                n_imu += 1
+            else:
+                if kind is _MAG:
+                    path.on_mag(raw)
+                add(None)
+        return answers, n_imu
+
+    def _write(self, block: list[_Entry], answers: list[Any]) -> int:
+        """Write a block's answers and copies, in order; returns the number of answers."""
+        out_imu, out_bias = self._outputs.imu, self._outputs.bias
+        n_out = 0
+        with self._outputs.writer.guarded() as write:
+            for (kind, path, t_rec, raw), answer in zip(block, answers, strict=True):
+                if kind is _COPY:
+                    conn_out, cdr = raw
+                    write(conn_out, t_rec, cdr)
+                elif answer is not None:
+                    imu, bias = path.serialize(answer)
+                    write(out_imu, t_rec, imu)
+                    write(out_bias, t_rec, bias)
+                    n_out += 1
+        return n_out

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from ..core.quaternion import quat_conj, quat_from_rotvec, quat_mul, quat_rotate, to_xyzw
-from ..errors import BagError, ParameterError
-from .bagio import open_writer, staged, typestore
+from ..errors import ParameterError
+from .bagio import open_writer, refuse_existing, staged, typestore
 
 G = 9.80665
 #: Earth field in ENU (tesla): 50 µT, dip 60° (roughly central Europe).
@@ -30,14 +31,10 @@ class SimData:
     moving: np.ndarray
 
 
-def _smooth(t: np.ndarray, rng: np.random.Generator, amp: float, f_lo: float, f_hi: float, n: int = 4) -> np.ndarray:
-    """Sum of ``n`` random sinusoids per axis: (N, 3) values and the component functions' parameters."""
-    out = np.zeros((len(t), 3))
-    for axis in range(3):
-        for _ in range(n):
-            f = rng.uniform(f_lo, f_hi)
-            out[:, axis] += amp / n * rng.uniform(0.5, 1.5) * np.sin(2 * np.pi * f * t + rng.uniform(0, 2 * np.pi))
-    return out
+def _ramp(t: np.ndarray, rest: float) -> np.ndarray:
+    """Smooth 0 -> 1 ramp over the 2 s after ``rest`` (s): motion starts gently."""
+    r = np.clip((t - rest) / 2.0, 0.0, 1.0)
+    return r * r * (3 - 2 * r)
 
 
 def generate(
@@ -69,21 +66,17 @@ def generate(
     n = int(round(duration_s * rate_hz))
     tr = np.arange(n) / rate_hz
     rest = min(rest_s, duration_s / 4)
-    # Smooth 0 -> 1 ramp after the initial rest: motion starts gently.
-    ramp = np.clip((tr - rest) / 2.0, 0.0, 1.0)
-    ramp = ramp * ramp * (3 - 2 * ramp)
+    ramp = _ramp(tr, rest)
     params_rot = [
         (rng.uniform(0.05, 0.4), rng.uniform(0, 2 * np.pi), rot_scale * rng.uniform(0.3, 0.9)) for _ in range(9)
     ]
     yaw_rate = rng.uniform(-0.3, 0.3)
 
     def rotvec(t: np.ndarray) -> np.ndarray:
-        r_ = np.clip((t - rest) / 2.0, 0.0, 1.0)
-        r_ = r_ * r_ * (3 - 2 * r_)
         out = np.zeros((len(t), 3))
         for k, (f, ph, a) in enumerate(params_rot):
             out[:, k % 3] += a / 3 * np.sin(2 * np.pi * f * t + ph) - a / 3 * np.sin(2 * np.pi * f * rest + ph)
-        return out * r_[:, None]
+        return out * _ramp(t, rest)[:, None]
 
     def orientation(t: np.ndarray) -> np.ndarray:
         yaw = yaw_rate * np.maximum(t - rest, 0.0)
@@ -122,10 +115,9 @@ def write_bag(data: SimData, path: str | Path, *, overwrite: bool = False, stora
     ``overwrite``) or cannot be written.
     """
     path = Path(path)
-    if path.exists() and not overwrite:
-        raise BagError(f'{path} exists; pass --overwrite to replace it')
+    refuse_existing(path, overwrite)
     ts = typestore()
-    T = ts.types
+    T: dict[str, Any] = ts.types  # rosbags' message classes are generated: fields not known statically
     Header, Time = T['std_msgs/msg/Header'], T['builtin_interfaces/msg/Time']
     Vector3, Quaternion = T['geometry_msgs/msg/Vector3'], T['geometry_msgs/msg/Quaternion']
     Imu, MagneticField = T['sensor_msgs/msg/Imu'], T['sensor_msgs/msg/MagneticField']
