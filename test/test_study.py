@@ -18,7 +18,9 @@ from ccf_ros.core.registry import FILTERS, make_filter
 from ccf_ros.offline.bagio import read_imu_arrays
 from ccf_ros.offline.simulate import MAG_WORLD, generate
 from ccf_ros.study import lscf
-from ccf_ros.study.datasets import load_bag, score
+from ccf_ros.study.datasets import load_bag, score, total_error_rad
+from ccf_ros.study.labels import CCF_EULER, CCF_QUATERNION, CKF, EKF, EULER, FORMULATIONS, MADGWICK, MAHONY, NCF
+from ccf_ros.study.verdicts import claim4_accuracy, claim5_cost
 
 BASELINES = ('lcf', 'ncf', 'ekf', 'ckf')
 
@@ -135,29 +137,29 @@ def test_study_end_to_end_on_a_real_trial(short_trial: Path, tmp_path: Path, cap
     name = res['datasets'][0]['name']
     # Every claim for both formulations has a verdict backed by numbers.
     assert sorted((v['claim'], v['formulation']) for v in res['verdicts']) == sorted(
-        (c, f) for c in range(1, 7) for f in ('euler', 'quaternion'))
+        (c, f) for c in range(1, 7) for f in FORMULATIONS)
     assert all(v['verdict'] and v['text'] for v in res['verdicts'])
     # Same filter, same data, through different experiments: the same number.
-    assert res['grid'][name]['euler/NCF/25/0.1']['total_deg'] == res['methods'][name]['NCF']['total_deg']
+    assert res['grid'][name]['euler/NCF/25/0.1']['total_deg'] == res['methods'][name][NCF]['total_deg']
     assert res['alpha'][name]['euler/0.7']['total_deg'] == res['grid'][name]['euler/CCF/25/0.1']['total_deg']
     assert res['grid'][name]['quaternion/NCF/25/0.1']['mean_rmse_rad'] > 0
     assert res['methods']['twin'] == res['methods'][name]
-    for form in ('euler', 'quaternion'):
+    for form in FORMULATIONS:
         fits = res['lscf'][form]
         assert fits[name]['loo_score'] == fits['twin']['score'] and fits['twin']['loo_score'] == fits[name]['score']
         assert fits[name]['residual_rms_rad_end'] <= fits[name]['residual_rms_rad_start']
     # The grid: 4 Kp x 3 Ki x (NCF, CCF) x 2 forms, all scored on the same samples.
     assert len(res['grid'][name]) == 48
     # Table 2b: the default time constants are the centre of the sensitivity grid.
-    assert res['sensitivity'][name]['1/1'] == res['methods'][name]['CCF ccf_ros (quaternion)']
+    assert res['sensitivity'][name]['1/1'] == res['methods'][name][CCF_QUATERNION]
     assert len({v['n_scored'] for v in res['grid'][name].values()}) == 1
     # Bode check: implementation == eqs 9/11/15 within 0.5 dB and 5 deg below fs/100.
     for case in res['bode']['cases']:
         assert case['max_abs_db_error'] < 0.5 and case['max_abs_phase_error_deg'] < 5.0, case['label']
     ct = res['compute_time']
-    assert set(ct['median_us']) == {'CCF paper (euler)', 'CCF ccf_ros (quaternion)', 'EKF', 'CKF'}
+    assert set(ct['median_us']) == {CCF_EULER, CCF_QUATERNION, EKF, CKF}
     lr = res['long_run']['filters']
-    assert set(lr) == {'CCF ccf_ros (quaternion)', 'CCF paper (euler)', 'NCF', 'EKF', 'CKF'}
+    assert set(lr) == {CCF_QUATERNION, CCF_EULER, NCF, EKF, CKF}
     assert all(len(f['rmse_total_deg']) == 3 for f in lr.values())  # 300 s in 100 s windows
     report = (out / 'report.md').read_text()
     for fig in res['figures']:
@@ -203,8 +205,38 @@ def test_study_without_long_run_and_fit_on_a_simulated_bag(tmp_path: Path, capsy
                      '--bode-frequencies', '2', '--quiet']) == 0
     res = json.loads((out / 'results.json').read_text())
     skipped = {(v['claim'], v['formulation']) for v in res['verdicts'] if v['verdict'].startswith('not measured')}
-    assert skipped == {(c, f) for c in (2, 6) for f in ('euler', 'quaternion')}
+    assert skipped == {(c, f) for c in (2, 6) for f in FORMULATIONS}
     assert 'long_run' not in res and 'lscf' not in res and len(res['figures']) == 9
     assert res['bode']['rate_hz'] == pytest.approx(100.0)
     # On clean simulated motion the ccf_ros default follows the truth within a degree or two.
-    assert res['methods']['sim']['CCF ccf_ros (quaternion)']['total_deg'] < 2.0
+    assert res['methods']['sim'][CCF_QUATERNION]['total_deg'] < 2.0
+
+
+def test_a_missing_estimate_counts_as_180_degrees_in_the_study_as_in_the_core():
+    q_ref = np.tile([1.0, 0.0, 0.0, 0.0], (3, 1))
+    q = np.array([[1.0, 0.0, 0.0, 0.0], [np.nan] * 4, [math.cos(0.1), math.sin(0.1), 0.0, 0.0]])
+    total = total_error_rad(q, q_ref)
+    np.testing.assert_allclose(total, [0.0, math.pi, 0.2], atol=1e-12)
+    assert summarize(q, q_ref).total_rmse_deg == pytest.approx(math.degrees(math.sqrt(np.mean(total**2))), rel=1e-12)
+    rotvec = lscf._rotation_error(q, q_ref)
+    np.testing.assert_allclose(rotvec, [[0.0, 0.0, 0.0], [math.pi, 0.0, 0.0], [0.2, 0.0, 0.0]], atol=1e-12)
+
+
+def _scores(total_deg: float) -> dict[str, float]:
+    return {'total_deg': total_deg, 'mean_rmse_rad': math.radians(total_deg)}
+
+
+def test_claim_verdicts_follow_their_thresholds():
+    # Claim 4: a method more than 10 % more accurate than the CCF breaks it; within 10 % it holds.
+    methods = {CCF_EULER: _scores(2.0), NCF: _scores(4.0), MAHONY: _scores(1.5), MADGWICK: _scores(1.9)}
+    v = claim4_accuracy({'methods': {'a': methods}}, EULER)
+    assert (v.claim, v.formulation) == (4, EULER)
+    assert v.verdict == 'does not hold: Mahony 1.50 deg are more accurate'
+    methods[MAHONY] = _scores(1.85)
+    assert claim4_accuracy({'methods': {'a': methods}}, EULER).verdict == 'holds (and better than NCF)'
+    # Claim 5: EKF and CKF at least 5x the CCF's time per sample.
+    ct = {'ratio_to_ccf_euler_median': {CCF_EULER: 1.0, EKF: 4.0, CKF: 9.0}, 'repetitions': 3}
+    v = claim5_cost({'compute_time': ct}, EULER)
+    assert v.verdict == 'holds for the CKF only'
+    assert v.as_dict() == {'claim': 5, 'formulation': EULER, 'verdict': v.verdict, 'text': v.text,
+                           'ekf_ratio': 4.0, 'ckf_ratio': 9.0}
