@@ -241,12 +241,12 @@ class _MessagePath:
 class Kind(Enum):
     """What a message of a block is for."""
 
-    IMU = 'imu'  #: filtered and answered
-    MAG = 'mag'  #: filtered
-    COPY = 'copy'  #: written to the output as it is (``copy_input``)
+    IMU = 'imu'  # fed to the engine, answered on the output topics
+    MAG = 'mag'  # fed to the engine
+    COPY = 'copy'  # written to the output as it is (``copy_input``)
 
 
-# Module globals: looking up Kind.IMU costs an enum attribute lookup per message.
+# As plain module globals for the message loops: each Kind.IMU there would cost an enum attribute lookup.
 _IMU, _MAG, _COPY = Kind.IMU, Kind.MAG, Kind.COPY
 
 #: One message of a block: its kind; its :class:`_Path` (None for a copy); its receive time, ns; its bytes as read
