@@ -85,11 +85,7 @@ def sensitivity_table(results: dict[str, Any]) -> str:
     for fa in SENSITIVITY_FACTORS:
         for fb in SENSITIVITY_FACTORS:
             cells = [results['sensitivity'][n][sensitivity_key(fa, fb)] for n in names]
-            # Known issue, kept so that the report does not change in a refactor: these labels are 3 s / 9 s and
-            # 60 s times the factors, not CcfParams' defaults (tau_acc_s 2.5, tau_mag_s 9, tau_bias_s 30 s) nor the
-            # factors the header names.
-            rows.append([f'{3 * fa:.3g} / {9 * fa:.3g}', f'{60 * fb:.3g}'] + [cell(c) for c in cells]
-                        + [mean_cell(cells)])
+            rows.append([f'{fa:.3g}', f'{fb:.3g}'] + [cell(c) for c in cells] + [mean_cell(cells)])
     return table(['blends (tau_acc/lp/mag) x', 'NCF (tau_ncf/bias) x'] + [short(n) for n in names] + ['mean'], rows)
 
 
