@@ -109,8 +109,7 @@ def diagnostics(
     mag_age = now - stats.last_mag
     bias = filt.gyro_bias
     bias_deg_s = math.degrees(math.sqrt(sum(b * b for b in bias)))
-    # The engine may keep the count across resets; the filter's own counter starts over at each reset.
-    n_nonfinite = int(getattr(engine, 'n_nonfinite_resets', filt.n_nonfinite_resets))
+    n_nonfinite = engine.n_nonfinite_resets  # kept across resets (the filter's own counter starts over)
     level, message = OK, 'ok'
     if now - stats.last_imu > NO_INPUT_S:
         level, message = ERROR, f'no IMU input for more than {NO_INPUT_S:g} s'
