@@ -338,7 +338,9 @@ class _Replayer:
         return answers, n_imu
 
     def _write(self, block: list[_Entry], answers: list[Any]) -> int:
-        """Write a block's answers and copies, in order; returns the number of answers."""
+        """Write a block's answers and copies, in order; returns the number of answers.
+
+        One write guard for the block (:meth:`BagWriter.guarded`): serializing an answer inside it does no I/O."""
         out_imu, out_bias = self._outputs.imu, self._outputs.bias
         n_out = 0
         with self._outputs.writer.guarded() as write:
