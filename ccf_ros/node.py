@@ -54,6 +54,7 @@ from .offline.fastcdr import (
     read_mag,
     vector3_stamped,
 )
+from .offline.messages import fill_imu, stamp_s
 from .settings import DESCRIPTIONS, all_defaults, build
 from .sync import HOLD_S, ImuMagSync
 
@@ -280,8 +281,8 @@ class CcfNode(Node):
                 t, field = read_mag(data)
             else:
                 msg = deserialize_message(data, MagneticField)
-                s, f = msg.header.stamp, msg.magnetic_field
-                t, field = s.sec + s.nanosec * 1e-9, (f.x, f.y, f.z)
+                f = msg.magnetic_field
+                t, field = stamp_s(msg.header), (f.x, f.y, f.z)
         except Exception as err:  # a truncated or foreign payload must not stop the node
             self.stats.n_unreadable += 1
             self._warn_throttled(f'unreadable magnetometer message ({len(data)} bytes) dropped: {err}')
@@ -304,8 +305,8 @@ class CcfNode(Node):
             else:
                 # Big-endian (or otherwise unusual) CDR: deserialize, answer with a message.
                 msg = deserialize_message(data, Imu)
-                s, g, a = msg.header.stamp, msg.angular_velocity, msg.linear_acceleration
-                t = s.sec + s.nanosec * 1e-9
+                g, a = msg.angular_velocity, msg.linear_acceleration
+                t = stamp_s(msg.header)
                 item = (t, msg, -1, (g.x, g.y, g.z), (a.x, a.y, a.z))
         except Exception as err:  # a truncated or foreign payload must not stop the node
             self.stats.n_unreadable += 1
@@ -371,15 +372,7 @@ class CcfNode(Node):
 
     def _answer_msg(self, t: float, msg: Imu, out: Output) -> None:
         """The same answer built as messages (input that is not little-endian CDR)."""
-        o = msg.orientation
-        o.x, o.y, o.z, o.w = out.orientation_xyzw
-        msg.orientation_covariance = list(out.covariance)
-        if out.angular_velocity is not None:
-            g = msg.angular_velocity
-            g.x, g.y, g.z = out.angular_velocity
-        if out.linear_acceleration is not None:
-            a = msg.linear_acceleration
-            a.x, a.y, a.z = out.linear_acceleration
+        fill_imu(msg, out, list(out.covariance))
         self.pub_imu.publish(msg)
         if self._bias_due(t):
             b = Vector3Stamped(header=msg.header)
