@@ -48,6 +48,14 @@ def error_angles(q_est: ArrayLike, q_ref: ArrayLike) -> tuple[np.ndarray, np.nda
     return total, heading, inclination
 
 
+def fill_missing(q: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+    """Estimates ``(M, 4)`` with the rows lacking one (any non-finite value) set to the identity, and those rows
+    ``(M,)`` bool, which the caller scores as a 180° error (BROAD's rule for a missing estimate)."""
+    q = np.asarray(q, dtype=float)
+    missing = ~np.isfinite(q).all(axis=-1)
+    return np.where(missing[:, None], [1.0, 0.0, 0.0, 0.0], q), missing
+
+
 def fit_heading_offset(q_est: ArrayLike, q_ref: ArrayLike) -> np.ndarray:
     """``q_ref`` (``(N, 4)``) turned about world up by the constant angle that minimises the RMS total error against
     ``q_est`` (both finite): how 6-D filters, which have no absolute heading, are scored (their heading *drift*)."""
@@ -85,10 +93,10 @@ def summarize(q_est: ArrayLike, q_ref: ArrayLike, mask: ArrayLike | None = None)
     sel &= np.all(np.isfinite(q_ref), axis=-1)
     est = q_est[sel]
     ref = q_ref[sel]
-    missing = ~np.all(np.isfinite(est), axis=-1)
-    total, heading, incl = error_angles(np.where(missing[:, None], [1.0, 0, 0, 0], est), ref)
+    filled, missing = fill_missing(est)
+    total, heading, incl = error_angles(filled, ref)
     total[missing] = heading[missing] = incl[missing] = np.pi
-    e_est = quat_to_euler(np.where(missing[:, None], [1.0, 0, 0, 0], est))
+    e_est = quat_to_euler(filled)
     e_ref = quat_to_euler(ref)
     d = wrap_angle(e_est - e_ref)
     d[missing] = np.pi

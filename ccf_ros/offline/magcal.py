@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -32,7 +31,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..errors import CcfError, ParameterError
-from .bagio import connections_for, deserialize, open_bag, read_messages
+from .bagio import read_topic, refuse_existing, staged
+from .plot import save_figure
 
 #: Fewest usable samples :func:`fit` accepts.
 MIN_SAMPLES = 50
@@ -292,12 +292,8 @@ def fit(mag: ArrayLike, *, field_norm_t: float | None = None) -> MagCalibration:
 
 def read_mag(bag: str | Path, topic: str = '/imu/mag') -> np.ndarray:
     """All magnetic_field vectors (N, 3), T, of a sensor_msgs/MagneticField topic; :class:`BagError` if absent."""
-    out: list[tuple[float, float, float]] = []
-    with open_bag(bag) as reader:
-        conns = connections_for(reader, topic, msgtype='sensor_msgs/msg/MagneticField')
-        for conn, _, raw in read_messages(reader, bag, conns):
-            f = deserialize(reader, raw, conn.msgtype, bag).magnetic_field
-            out.append((f.x, f.y, f.z))
+    out = [(m.magnetic_field.x, m.magnetic_field.y, m.magnetic_field.z)
+           for _, _, m in read_topic(bag, topic, 'sensor_msgs/msg/MagneticField')]
     return np.array(out, dtype=float).reshape(-1, 3)
 
 
@@ -351,21 +347,13 @@ def plot(path: str | Path, raw: ArrayLike, cal: MagCalibration) -> None:
     axes[0].legend(loc='upper right', fontsize=8, markerscale=6)
     fig.suptitle(f'magnetometer calibration: residual {cal.residual_rel:.2%} RMS, coverage {cal.coverage:.0%}, '
                  f'{cal.n_samples} samples')
-    fig.tight_layout()
-    try:
-        fig.savefig(path, dpi=90)
-    except OSError as err:
-        raise CcfError(f'cannot write {path}: {err.strerror or err}') from err
-    finally:
-        plt.close(fig)
+    save_figure(fig, path)
 
 
 def cmd_calibrate_mag(args: argparse.Namespace) -> int:
     """Read, fit, report, write the parameters YAML (atomically) and optionally the plot."""
     out = Path(args.output)
-    # Refuse before the slow part, not after.
-    if out.exists() and not args.overwrite:
-        raise CcfError(f'{out} exists; pass --overwrite to replace it')
+    refuse_existing(out, args.overwrite)  # before the slow part, not after
     if args.field_norm_ut is not None and not (math.isfinite(args.field_norm_ut) and args.field_norm_ut > 0):
         raise ParameterError(f'--field-norm-ut must be a positive number of uT, got {args.field_norm_ut!r}')
     raw = read_mag(args.bag, args.mag_topic)
@@ -385,17 +373,12 @@ def cmd_calibrate_mag(args: argparse.Namespace) -> int:
     if cal.coverage < COVERAGE_WARN:
         print(f'warning: coverage {cal.coverage:.0%} is low: rotate the sensor through more orientations '
               '(all sides up, full turns) and record again')
-    # Temp sibling + rename: a reader (or a crash) never sees half a file.
-    tmp = out.with_name(f'.{out.name}.partial')
-    try:
-        tmp.write_text(params_yaml(cal))
-        os.replace(tmp, out)
-    except OSError as err:
-        tmp.unlink(missing_ok=True)
-        raise CcfError(f'cannot write {out}: {err.strerror}') from err
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    # Staged and renamed: a reader (or a crash) never sees half a file.
+    with staged(out) as tmp:
+        try:
+            tmp.write_text(params_yaml(cal))
+        except OSError as err:
+            raise CcfError(f'cannot write {out}: {err.strerror}') from err
     print(f'wrote {out}')
     if args.plot:
         plot(args.plot, raw, cal)

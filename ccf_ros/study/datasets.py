@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from ..core import run_batch
-from ..core.metrics import error_angles, summarize
+from ..core.metrics import error_angles, fill_missing, summarize
 from ..core.registry import make_filter
 from ..offline.bagio import BagError, read_bools, read_imu_arrays, read_orientations
 from ..offline.evaluate import align, mask_at
@@ -89,15 +89,6 @@ def run_filter(settings: dict[str, Any], ds: Dataset) -> tuple[np.ndarray, np.nd
     r = run_batch(make_filter(settings), ds.t_s, ds.gyr, ds.acc, ds.mag)
     ok = r.answered
     return align(ds.t_s[ok], r.quat[ok], ds.t_ref, ds.q_ref), r.bias, ok
-
-
-def fill_missing(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Estimates ``(M, 4)`` with the rows lacking one (any NaN) set to the identity, and those rows ``(M,)`` bool.
-
-    The caller scores those rows as a 180° error: the rule of :func:`ccf_ros.core.metrics.summarize`.
-    """
-    missing = ~np.isfinite(q).all(axis=1)
-    return np.where(missing[:, None], [1.0, 0.0, 0.0, 0.0], q), missing
 
 
 def total_error_rad(q: np.ndarray, q_ref: np.ndarray) -> np.ndarray:
