@@ -9,6 +9,8 @@ from pathlib import Path
 
 import pytest
 
+from ccf_ros.offline.messages import stamp_s
+
 # Network rule: DDS traffic never leaves the loopback interface, and tests get a domain of their own.
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.setdefault('ROS_DOMAIN_ID', str(random.Random(os.getpid()).randint(100, 200)))
@@ -75,6 +77,7 @@ def short_trial(broad_trial: Path, tmp_path_factory: pytest.TempPathFactory) -> 
 
 
 def _stamp(msg, t_s):
+    """Set a message's header stamp to ``t_s`` (s)."""
     msg.header.stamp.sec = int(t_s)
     msg.header.stamp.nanosec = int(round((t_s - int(t_s)) * 1e9))
 
@@ -90,7 +93,7 @@ def make_faulty(src: Path, dst: Path) -> tuple[Path, dict[str, int]]:
         if topic == '/imu/data_raw':
             i = k['imu']
             k['imu'] += 1
-            st = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+            st = stamp_s(msg.header)
             if i > 10000:  # 30 s gap after ~35 s
                 _stamp(msg, st + gap_s)
                 t += int(gap_s * 1e9)
@@ -119,7 +122,7 @@ def make_faulty(src: Path, dst: Path) -> tuple[Path, dict[str, int]]:
             if 13000 < j < 15860:  # 10 s of silent magnetometer
                 return []
             if j > 10000:
-                st = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+                st = stamp_s(msg.header)
                 _stamp(msg, st + gap_s)
                 t += int(gap_s * 1e9)
             if j % 401 == 9:
@@ -128,7 +131,7 @@ def make_faulty(src: Path, dst: Path) -> tuple[Path, dict[str, int]]:
                 msg.magnetic_field.z = float('-inf')
             return [(msg, t)]
         if topic == '/ground_truth/pose' and k['imu'] > 10000:
-            st = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+            st = stamp_s(msg.header)
             _stamp(msg, st + gap_s)
             return [(msg, t + int(gap_s * 1e9))]
         return [(msg, t)]

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..core.quaternion import from_xyzw
 from ..errors import CcfError
+from .messages import seconds
 from .play import load_messages, play
 
 
@@ -70,7 +71,7 @@ def run_live(bag: Path, rate: float = 4.0, timeout_s: float = 120.0, node_qos: s
 
     def on_out(msg: Imu) -> None:
         s, o = msg.header.stamp, msg.orientation
-        received.append((s.sec + s.nanosec * 1e-9, from_xyzw(o.x, o.y, o.z, o.w)))
+        received.append((seconds(s.sec, s.nanosec), from_xyzw(o.x, o.y, o.z, o.w)))
 
     node.create_subscription(Imu, 'imu/data', on_out, QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE))
     diagnostics: dict[str, str] = {}

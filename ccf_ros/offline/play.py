@@ -79,6 +79,10 @@ def play(
         if should_stop():
             return 0
         time.sleep(0.01)
+    if wait_matched_s > 0.0:
+        # The writers see the match first; give the readers' side a moment to match back before the first sample
+        # (a lost first magnetometer sample would change the initial heading).
+        time.sleep(min(0.5, wait_matched_s))
     n = 0
     if not messages:
         return 0
