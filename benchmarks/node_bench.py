@@ -37,17 +37,17 @@ os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 # A domain of this run's own; child processes (spawned, re-importing this file) inherit the same one.
 os.environ.setdefault('ROS_DOMAIN_ID', str(random.randint(100, 200)))
 
-import numpy as np  # noqa: E402
-import rclpy  # noqa: E402
-from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
-from rclpy.serialization import serialize_message  # noqa: E402
-from sensor_msgs.msg import Imu, MagneticField  # noqa: E402
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.serialization import serialize_message
+from sensor_msgs.msg import Imu, MagneticField
 
-from ccf_ros.node import input_qos  # noqa: E402
-from ccf_ros.offline.live import node_command  # noqa: E402
-from ccf_ros.settings import all_defaults  # noqa: E402
+from ccf_ros.node import input_qos
+from ccf_ros.offline.live import node_command
+from ccf_ros.settings import all_defaults
 
 HERE = Path(__file__).resolve().parent
 BROAD = HERE.parents[1] / 'shared' / 'data' / 'broad' / '07_undisturbed_fast_rotation_B'
@@ -105,8 +105,7 @@ def recorder(conn, namespaces: list[str]) -> None:
 
 def cpu_s(pid: int) -> float:
     """User + system CPU time (s) of a process so far, all its threads."""
-    with open(f'/proc/{pid}/stat') as f:
-        fields = f.read().rsplit(')', 1)[1].split()
+    fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
 
 
@@ -212,7 +211,7 @@ def order(labels: list[str], r: int) -> list[str]:
 
 def throughput_round(rig: Rig, labels: list[str], rates: list[float], r: int) -> dict[str, float]:
     """Per node, the highest loss-free rate of the ladder (rates tried on both nodes before the next)."""
-    best = {label: 0.0 for label in labels}
+    best = dict.fromkeys(labels, 0.0)
     alive = list(labels)
     log: dict[str, list[str]] = {label: [] for label in labels}
     for rate in rates:

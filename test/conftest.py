@@ -82,7 +82,7 @@ def _stamp(msg, t_s):
     msg.header.stamp.nanosec = int(round((t_s - int(t_s)) * 1e9))
 
 
-def make_faulty(src: Path, dst: Path) -> tuple[Path, dict[str, int]]:
+def make_faulty(src: Path, dst: Path) -> tuple[Path, dict[str, int]]:  # noqa: C901 - one list of faults, read top down
     """``src`` with NaN/Inf, zero vectors, duplicated and backward stamps, a 30 s gap and 10 s of silent
     magnetometer injected; returns the bag and the counts of injected invalid samples."""
     k = {'imu': 0, 'mag': 0}

@@ -14,7 +14,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_colcon_build_installs_node_and_ament_marker(tmp_path):
-    colcon = shutil.which('colcon', path=os.path.dirname(sys.executable)) or shutil.which('colcon')
+    colcon = shutil.which('colcon', path=str(Path(sys.executable).parent)) or shutil.which('colcon')
     if colcon is None:
         pytest.skip('colcon not installed (pip install .[test])')
     src = tmp_path / 'src' / 'ccf_ros'

@@ -313,9 +313,9 @@ def test_bag_helpers_turn_rosbags_failures_into_bag_errors(sim_bag, tmp_path):
         def write(self, *args: object) -> None:
             raise OSError(28, 'No space left on device')
 
-    with pytest.raises(BagError, match='out: cannot write bag: OSError'):
-        with BagWriter(Full(), Path('out')).guarded() as write:  # type: ignore[arg-type]
-            write(None, 0, b'')
+    with pytest.raises(BagError, match='out: cannot write bag: OSError'), \
+            BagWriter(Full(), Path('out')).guarded() as write:  # type: ignore[arg-type]
+        write(None, 0, b'')
 
 
 def test_staged_writes_a_file_whole_or_not_at_all(tmp_path):

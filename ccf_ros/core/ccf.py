@@ -325,7 +325,7 @@ class QuaternionCcf(OrientationFilter):
     def _heading_absolute(self) -> bool:
         return self._heading_known
 
-    def _step(
+    def _step(  # noqa: C901 - the per-sample hot path, one function on purpose (calls cost as much as the maths)
         self,
         dt: float,
         gx: float,

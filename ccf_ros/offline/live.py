@@ -29,7 +29,7 @@ def isolate_dds() -> None:
 
 def node_command() -> list[str]:
     """The installed ``ccf_node`` next to this Python, else the module."""
-    exe = shutil.which('ccf_node', path=os.path.dirname(sys.executable))
+    exe = shutil.which('ccf_node', path=str(Path(sys.executable).parent))
     return [exe] if exe else [sys.executable, '-m', 'ccf_ros.node']
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -69,10 +70,8 @@ def load_bag(path: str | Path, topics: Topics = Topics()) -> Dataset:
         raise BagError(f'{path}: no messages on the reference topic {topics.reference}')
     mask = np.ones(len(t_ref), dtype=bool)
     if topics.mask:
-        try:
+        with contextlib.suppress(BagError):  # an optional topic: no mask, every reference sample is scored
             mask = mask_at(t_ref, *read_bools(path, topics.mask))
-        except BagError:
-            pass  # an optional topic: no mask, every reference sample is scored
     return Dataset(path.name, imu.t_s, imu.gyr, imu.acc, imu.mag, t_ref, q_ref, mask)
 
 
