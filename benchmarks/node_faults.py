@@ -20,10 +20,10 @@ os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ['ROS_DOMAIN_ID'] = str(random.randint(100, 200))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'test'))
 
-import numpy as np  # noqa: E402
-from conftest import TRIAL, copy_bag  # noqa: E402
+import numpy as np
+from conftest import TRIAL, copy_bag
 
-from ccf_ros.offline.live import run_live  # noqa: E402
+from ccf_ros.offline.live import run_live
 
 
 def main() -> None:

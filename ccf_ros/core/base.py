@@ -135,8 +135,22 @@ class OrientationFilter(ABC):
     name = ''
     # Slots: attribute access on the per-sample path is measurably faster than through __dict__.
     __slots__ = (
-        'params', '_frame', '_identity_frame', '_use_mag', '_max_dt', '_t_last', 'initialized', '_q', 'counts',
-        'n_no_acc', 'n_no_mag', 'n_nonfinite_resets', '_t_no_acc', '_t_no_mag', 'at_rest', 'mag_disturbed',
+        '_frame',
+        '_identity_frame',
+        '_max_dt',
+        '_q',
+        '_t_last',
+        '_t_no_acc',
+        '_t_no_mag',
+        '_use_mag',
+        'at_rest',
+        'counts',
+        'initialized',
+        'mag_disturbed',
+        'n_no_acc',
+        'n_no_mag',
+        'n_nonfinite_resets',
+        'params',
     )
     params: CommonParams
 
@@ -161,7 +175,7 @@ class OrientationFilter(ABC):
 
     def _params_changed(self) -> None:
         """Re-derive coefficients after :meth:`set_params`; state is kept."""
-        return None
+        return
 
     def reset(self) -> None:
         """Forget everything learnt: equivalent to a fresh instance with the same parameters."""
