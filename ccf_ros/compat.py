@@ -14,7 +14,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from .settings import IMU_TOOLS_GAINS
+from .settings import IMU_TOOLS_GAINS, all_defaults
 
 #: Parameters of imu_filter_madgwick (Jazzy) that are read-only there.
 _MADGWICK_READ_ONLY = frozenset({
@@ -26,9 +26,12 @@ _COMPLEMENTARY_READ_ONLY = frozenset({
     'fixed_frame', 'use_mag', 'publish_tf', 'reverse_tf', 'constant_dt', 'publish_debug_topics', 'gain_acc',
     'gain_mag', 'do_bias_estimation', 'bias_alpha', 'do_adaptive_gain',
 })
-#: ccf_node: the input QoS is fixed at start-up, and so are the publishers that TF and debug topics need.
-_CCF_READ_ONLY = frozenset({'qos_reliability', 'qos_depth', 'publish_tf', 'fixed_frame', 'reverse_tf',
-                            'publish_debug_topics'})
+#: ccf_node: only the input QoS is fixed at start-up (the subscriptions are made with it). Everything else applies
+#: while running, the TF and debug publishers included (made when first switched on).
+_CCF_READ_ONLY = frozenset({'qos_reliability', 'qos_depth'})
+#: The imu_tools gains that have no ccf meaning: accepted, and a notice is logged when one is set to a value other
+#: than its imu_tools default. (``do_bias_estimation`` has a meaning: :func:`apply_do_bias_estimation`.)
+MEANINGLESS_GAINS = ('gain', 'zeta', 'gain_acc', 'gain_mag', 'bias_alpha', 'do_adaptive_gain')
 
 
 @dataclass(frozen=True)
@@ -38,13 +41,16 @@ class NodeProfile:
     Attributes:
         executable: console script / ``lib/ccf_ros/`` executable name.
         node_name: default node name (a launch file's ``name=`` overrides it, as usual).
-        imu_topic, mag_topic, out_topic: input and output topics (relative unless they start with ``/``).
+        imu_topic, mag_topic, out_topic: input and output topics (relative: they resolve in the node's namespace).
         rpy_filtered_topic, rpy_raw_topic: debug topics (roll, pitch, yaw of the output / of the accelerometer and
             magnetometer alone), published with ``publish_debug_topics``; None: not published.
-        steady_state_topic: std_msgs/Bool "at rest" debug topic (complementary filter), or None.
+        steady_state_topic: std_msgs/Bool "at rest" debug topic (complementary filter, with ``publish_debug_topics``
+            and ``do_bias_estimation``), or None.
         defaults: parameter defaults that differ from :func:`ccf_ros.settings.all_defaults` for this executable.
-        read_only: parameters that cannot change after start-up.
-        qos_overrides: input subscriptions accept rclpy's standard ``qos_overrides.<topic>.subscription.*``.
+        read_only: parameters that cannot change after start-up. When ``use_mag`` is among them and false at
+            start-up, the magnetometer is not subscribed (as in imu_tools).
+        qos_overrides: input subscriptions accept rclpy's standard ``qos_overrides.<topic>.subscription.*``
+            (depth, durability, history, reliability), ``<topic>`` being the resolved name (``/imu/data_raw``).
         bias_from_do_bias_estimation: ``do_bias_estimation`` also switches the bias-corrected ``angular_velocity``
             (the complementary filter's behaviour).
     """
@@ -74,11 +80,11 @@ PROFILES: dict[str, NodeProfile] = {
     'complementary_filter_node': NodeProfile(
         executable='complementary_filter_node',
         node_name='ComplementaryFilterROS',
-        # The complementary filter reads these absolute names (its QoS override keys are qos_overrides./imu/...).
-        imu_topic='/imu/data_raw',
-        mag_topic='/imu/mag',
+        # Jazzy's imu_complementary_filter (2.1.5) subscribes the relative imu/data_raw and imu/mag (older ROS 2
+        # releases used /imu/data_raw, /imu/mag, /imu/steady_state); in the root namespace both resolve to
+        # /imu/..., the names its filter_config.yaml's qos_overrides./imu/... keys use.
         rpy_raw_topic=None,
-        steady_state_topic='/imu/steady_state',
+        steady_state_topic='imu/steady_state',
         # Its world frame with a magnetometer is North-West-Up (x towards magnetic north); without, yaw is relative.
         defaults={'use_mag': False, 'publish_tf': False, 'fixed_frame': 'odom', 'world_frame': 'nwu',
                   'bias_corrected_rate': True, 'qos_reliability': 'reliable', 'qos_depth': 10},
@@ -90,14 +96,24 @@ PROFILES: dict[str, NodeProfile] = {
 
 
 def gain_notices(values: Mapping[str, Any]) -> list[str]:
-    """One line per imu_tools gain set to a non-default value: which ccf parameter plays that role instead."""
+    """One line per imu_tools gain of :data:`MEANINGLESS_GAINS` in ``values`` with a value other than its imu_tools
+    default: that it is ignored, and which ccf parameter plays that role instead."""
     out = []
-    for name, (default, role) in IMU_TOOLS_GAINS.items():
+    for name in MEANINGLESS_GAINS:
+        default, role = IMU_TOOLS_GAINS[name]
         if name in values and values[name] != default and not (
             isinstance(default, float) and isinstance(values[name], (int, float)) and
             math.isclose(float(values[name]), default)
         ):
             out.append(f'{name}={values[name]!r} has no meaning for the ccf filter (ignored); ccf uses {role}')
+    return out
+
+
+def defaults_for(profile: NodeProfile) -> dict[str, Any]:
+    """Every parameter an executable declares, with its default there: :func:`ccf_ros.settings.all_defaults`, the
+    profile's own defaults over them."""
+    out = all_defaults()
+    out.update(profile.defaults)
     return out
 
 
@@ -109,6 +125,14 @@ def apply_do_bias_estimation(values: dict[str, Any], profile: NodeProfile) -> No
         values['motion_bias'] = False
         if profile.bias_from_do_bias_estimation:
             values['bias_corrected_rate'] = False
+
+
+def bias_estimation_notice(values: Mapping[str, Any], profile: NodeProfile) -> str | None:
+    """What ``do_bias_estimation: false`` switches off (see :func:`apply_do_bias_estimation`), or None."""
+    if values.get('do_bias_estimation', True) is not False:
+        return None
+    also = ' and bias_corrected_rate' if profile.bias_from_do_bias_estimation else ''
+    return f'do_bias_estimation=false: gyro-bias learning off (rest_bias and motion_bias false{also})'
 
 
 def tf_transform(q_xyzw: tuple[float, float, float, float], imu_frame: str, fixed_frame: str, reverse: bool

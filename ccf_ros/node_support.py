@@ -1,19 +1,136 @@
-"""The node's bookkeeping as plain code: input statistics and the diagnostics it publishes. No ROS import.
+"""The node's bookkeeping as plain code: parameter values, input statistics, diagnostics, debug values. No ROS import.
 
-:class:`InputStats` counts what arrives (IMU arrival times -> input rate, holes in the stamp sequence -> messages
-lost upstream, magnetometer arrival time); :func:`diagnostics` turns those, the engine and the IMU/magnetometer
-sync into the values and the OK / WARN / ERROR level of the node's ``/diagnostics`` status. Times are plain floats:
-stamps in s, ``now`` from a monotonic clock in s, passed in by the caller.
+:func:`coerce_parameter` checks and converts a parameter value as the node receives it (an integer for a real
+parameter included); :class:`InputStats` counts what arrives (IMU arrival times -> input rate, holes in the stamp
+sequence -> messages lost upstream, magnetometer arrival time); :func:`diagnostics` turns those, the engine and the
+IMU/magnetometer sync into the values and the OK / WARN / ERROR level of the node's ``/diagnostics`` status;
+:func:`raw_rpy` is the ``imu/rpy/raw`` debug value and :func:`imu_header` reads what TF needs from a serialized Imu.
+Times are plain floats: stamps in s, ``now`` from a monotonic clock in s, passed in by the caller.
 """
 
 from __future__ import annotations
 
 import math
+import struct
 from collections import deque
-from typing import NamedTuple
+from collections.abc import Iterable
+from typing import Any, NamedTuple
 
+from .core.quaternion import WORLD_FRAMES, quat_from_acc_mag_scalar, rpy_of
 from .engine import ImuEngine
+from .errors import ParameterError
 from .sync import HoldStats
+
+Vec3 = tuple[float, float, float]
+
+# --- parameters -------------------------------------------------------------------------------------------------
+
+#: Parameters whose value may be a number or a list of three (per axis).
+PER_AXIS = frozenset({'kp', 'ki', 'alpha', 'lcf_alpha'})
+#: Range (inclusive) of a real parameter; the node's descriptors show it, :func:`coerce_parameter` enforces it (the
+#: core validates more precisely). Not listed: :data:`DEFAULT_RANGE`.
+PARAMETER_RANGES: dict[str, tuple[float, float]] = {
+    'alpha': (0.0, 1.0),
+    'mag_norm_tol': (0.0, 10.0),
+    'mag_dip_tol_rad': (0.0, math.pi),
+    'constant_dt': (0.0, 10.0),
+    'orientation_stddev': (0.0, math.pi),
+    'gyro_bias_rate_hz': (0.0, 100000.0),
+    # imu_tools' own ranges: signed angles (rad) and hard-iron offsets (T) ...
+    'yaw_offset': (-2.0 * math.pi, 2.0 * math.pi),
+    'declination': (-2.0 * math.pi, 2.0 * math.pi),
+    'mag_bias_x': (-10.0, 10.0),
+    'mag_bias_y': (-10.0, 10.0),
+    'mag_bias_z': (-10.0, 10.0),
+    'gain': (0.0, 1.0),
+    'zeta': (-1.0, 1.0),
+    # ... and none for the complementary filter's gains (it accepts any value, warns and keeps its default).
+    'gain_acc': (-1e9, 1e9),
+    'gain_mag': (-1e9, 1e9),
+    'bias_alpha': (-1e9, 1e9),
+}
+#: Range of the other real parameters: positive.
+DEFAULT_RANGE = (0.0, 1e9)
+
+
+def parameter_range(name: str) -> tuple[float, float]:
+    """The inclusive range of the real parameter ``name``."""
+    return PARAMETER_RANGES.get(name, DEFAULT_RANGE)
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _numbers(name: str, value: Any) -> tuple[float, ...]:
+    if isinstance(value, (str, bytes)) or not isinstance(value, Iterable):
+        raise ParameterError(f'{name} must be a list of numbers, got {value!r}')
+    items = list(value)
+    if not all(_is_number(v) for v in items):
+        raise ParameterError(f'{name} must be a list of numbers, got {items!r}')
+    return tuple(float(v) for v in items)
+
+
+def coerce_parameter(name: str, value: Any, default: Any) -> Any:
+    """``value`` of the parameter ``name`` (declared with ``default``) as the settings take it.
+
+    Real parameters are declared with dynamic typing (rclpy would refuse an integer for a double): an integer is
+    accepted and converted, anything else that is not a number is refused, as is a value outside its range. Arrays
+    of reals accept integers too; per-axis gains take a number or a list. Booleans, strings and integers are typed
+    by rclpy and pass unchanged.
+
+    Raises:
+        ParameterError: not a number (or list of numbers), or out of range; the message names the parameter.
+    """
+    if name in PER_AXIS:
+        return float(value) if _is_number(value) else _numbers(name, value)
+    if isinstance(default, tuple):
+        return _numbers(name, value)
+    if isinstance(default, float):
+        if not _is_number(value):
+            raise ParameterError(f'{name} must be a number, got {value!r}')
+        v = float(value)
+        lo, hi = parameter_range(name)
+        if not lo <= v <= hi:  # NaN too
+            raise ParameterError(f'{name} must be within [{lo:g}, {hi:g}], got {value!r}')
+        return v
+    return value
+
+
+# --- debug values and TF ------------------------------------------------------------------------------------------
+
+def raw_rpy(acc: Vec3, mag: Vec3 | None, world_frame: str) -> Vec3 | None:
+    """Roll, pitch, yaw (rad) of the attitude of one accelerometer + (calibrated) magnetometer sample alone, in the
+    world frame ``world_frame`` (imu_filter_madgwick's ``imu/rpy/raw``: no filter, no yaw offset); None without a
+    magnetometer sample, an unusable accelerometer, or a field too close to the vertical to give a heading."""
+    if mag is None:
+        return None
+    ax, ay, az = acc
+    n2 = ax * ax + ay * ay + az * az
+    if not (n2 > 1e-12 and math.isfinite(n2)) or not all(math.isfinite(m) for m in mag):
+        return None
+    q = quat_from_acc_mag_scalar(ax, ay, az, mag[0], mag[1], mag[2], True)
+    if q is None:
+        return None
+    pw, px, py, pz = WORLD_FRAMES[world_frame]
+    qw, qx, qy, qz = q
+    # ENU -> the world frame (as OrientationFilter.quaternion does): q_frame = p ⊗ q_enu.
+    return rpy_of((
+        pw * qw - px * qx - py * qy - pz * qz,
+        pw * qx + px * qw + py * qz - pz * qy,
+        pw * qy - px * qz + py * qw + pz * qx,
+        pw * qz + px * qy - py * qx + pz * qw,
+    ))
+
+
+_HEADER = struct.Struct('<iII')  # after the 4-byte encapsulation: sec, nanosec, frame_id length (with its NUL)
+
+
+def imu_header(data: bytes) -> tuple[int, int, str]:
+    """``(sec, nanosec, frame_id)`` of a little-endian CDR message that starts with a std_msgs/Header."""
+    sec, nanosec, n = _HEADER.unpack_from(data, 4)
+    return sec, nanosec, data[16:16 + max(n - 1, 0)].decode('utf-8', 'replace')
+
 
 #: Levels as in diagnostic_msgs/DiagnosticStatus.
 OK, WARN, ERROR = 0, 1, 2
@@ -129,6 +246,7 @@ def diagnostics(
         'samples in': str(engine.n_in),
         'magnetometer samples in': str(stats.n_mag),
         'samples answered': str(engine.answered()),
+        'samples answered with the current orientation (could not advance the filter)': str(engine.n_answered_stale),
         'messages lost upstream (estimated)': str(stats.n_lost),
         'unreadable messages dropped': str(stats.n_unreadable),
         'magnetometer age (s)': f'{mag_age:.2f}' if math.isfinite(mag_age) else 'never',
