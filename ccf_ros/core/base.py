@@ -43,6 +43,7 @@ _REINITIALIZED = int(Status.REINITIALIZED_AFTER_GAP)
 _BAD_GYRO = int(Status.SKIPPED_BAD_GYRO)
 _BAD_STAMP = int(Status.SKIPPED_STAMP)
 _NO_ACC_YET = int(Status.SKIPPED_NO_ACC_YET)
+_INF = math.inf
 
 
 class FilterFlags(NamedTuple):
@@ -247,20 +248,21 @@ class OrientationFilter(ABC):
             self.counts[_BAD_GYRO] += 1
             return _BAD_GYRO
         dt = t_s - self._t_last
-        if not dt > 0.0 or t_s - t_s != 0.0:
+        # Comparisons with NaN are False: this rejects dt <= 0 and a NaN or infinite stamp (the first dt is inf).
+        if not (dt > 0.0 and -_INF < t_s < _INF):
             self.counts[_BAD_STAMP] += 1
             return _BAD_STAMP
         self._t_last = t_s
         ax, ay, az = acc
         acc_n2 = ax * ax + ay * ay + az * az
-        if not (acc_n2 > 1e-12 and acc_n2 - acc_n2 == 0.0):
+        if not 1e-12 < acc_n2 < _INF:
             acc_n2 = 0.0
             self.n_no_acc += 1
             self._t_no_acc = t_s
         if mag is not None and self._use_mag:
             mx, my, mz = mag
             mag_n2 = mx * mx + my * my + mz * mz
-            if not (mag_n2 > 1e-30 and mag_n2 - mag_n2 == 0.0):
+            if not 1e-30 < mag_n2 < _INF:
                 mag_n2 = 0.0
                 self.n_no_mag += 1
                 self._t_no_mag = t_s

@@ -432,55 +432,52 @@ class QuaternionCcf(OrientationFilter):
         by -= k * ny
         bz -= k * nz
         if c.rest_bias:
-            k = c.k_rest
-            glx, gly, glz = self._gyro_lp
-            # d = sample - previous low-pass; the deviation from the updated low-pass is (1 - k) d, which the
-            # gyro threshold in c accounts for. The accelerometer is compared with the filtered gravity (checked
-            # first: it fails first while moving).
-            dgx = gx - glx
-            dgy = gy - gly
-            dgz = gz - glz
-            glx += k * dgx
-            gly += k * dgy
-            glz += k * dgz
-            self._gyro_lp = (glx, gly, glz)
+            # Rest: the accelerometer within rest_acc_m_s2 of the filtered gravity (tested first: it fails first
+            # while moving, and then nothing else is needed), and the gyro within rest_gyro_rad_s of its low-pass.
             dax = ax - fx
             day = ay - fy
             daz = az - fz
-            if (
-                dax * dax + day * day + daz * daz < c.rest_acc2
-                and acc_n2
-                and dgx * dgx + dgy * dgy + dgz * dgz < c.rest_gyro2
-                and glx * glx + gly * gly + glz * glz < c.bias_max2
-            ):
-                self._rest_s += dt
-                if self._rest_s >= c.rest_min_s:
-                    # At rest the low-passed gyro *is* the bias: pull the estimate there.
-                    self.at_rest = True
-                    bx += k * (glx - bx)
-                    by += k * (gly - by)
-                    bz += k * (glz - bz)
-                    self._u_bias = u = c.u_rest + (u - c.u_rest) * c.keep_bias_rest
+            if dax * dax + day * day + daz * daz < c.rest_acc2 and acc_n2:
+                k = c.k_rest
+                if self._rest_s:
+                    glx, gly, glz = self._gyro_lp
+                else:
+                    # A possible rest begins: the gyro low-pass starts from here (it is not kept while moving).
+                    glx, gly, glz = gx, gy, gz
+                # d = sample - previous low-pass; the deviation from the updated low-pass is (1 - k) d, which the
+                # gyro threshold in c accounts for.
+                dgx = gx - glx
+                dgy = gy - gly
+                dgz = gz - glz
+                glx += k * dgx
+                gly += k * dgy
+                glz += k * dgz
+                self._gyro_lp = (glx, gly, glz)
+                if dgx * dgx + dgy * dgy + dgz * dgz < c.rest_gyro2 and glx * glx + gly * gly + glz * glz < c.bias_max2:
+                    # 1e-12 s keeps the timer non-zero (the low-pass continues) from the first sample on.
+                    self._rest_s += dt + 1e-12
+                    if self._rest_s >= c.rest_min_s:
+                        # At rest the low-passed gyro *is* the bias: pull the estimate there.
+                        self.at_rest = True
+                        bx += k * (glx - bx)
+                        by += k * (gly - by)
+                        bz += k * (glz - bz)
+                        self._u_bias = u = c.u_rest + (u - c.u_rest) * c.keep_bias_rest
+                elif self._rest_s:
+                    self._rest_s = 0.0
+                    self.at_rest = False
             elif self._rest_s:
                 self._rest_s = 0.0
                 self.at_rest = False
         if u < 1.0 and not self.at_rest:
             u += c.u_walk
             self._u_bias = u if u < 1.0 else 1.0
-        # Anti-windup: the estimate never leaves ±bias_max per axis.
-        m = c.bias_max
-        if bx > m:
-            bx = m
-        elif bx < -m:
-            bx = -m
-        if by > m:
-            by = m
-        elif by < -m:
-            by = -m
-        if bz > m:
-            bz = m
-        elif bz < -m:
-            bz = -m
+        # Anti-windup: the estimate never leaves ±bias_max per axis (tested per axis only when the norm says it may).
+        if bx * bx + by * by + bz * bz > c.bias_max2:
+            m = c.bias_max
+            bx = max(-m, min(m, bx))
+            by = max(-m, min(m, by))
+            bz = max(-m, min(m, bz))
         self._bias = (bx, by, bz)
         # LCF: integrate the bias-corrected rate plus the blend correction: q <- q ⊗ exp(h).
         rx = (gx - bx) * dt
@@ -505,7 +502,9 @@ class QuaternionCcf(OrientationFilter):
         x = qw * hx + qx * cw + qy * hz - qz * hy
         y = qw * hy - qx * hz + qy * cw + qz * hx
         z = qw * hz + qx * hy - qy * hx + qz * cw
-        inv = 1.0 / sqrt(w * w + x * x + y * y + z * z)
+        # Both factors are unit quaternions, so the norm is 1 up to rounding: the first-order renormalisation
+        # 1/sqrt(n) = 1.5 - 0.5 n is exact to ~1e-30 there and needs no square root.
+        inv = 1.5 - 0.5 * (w * w + x * x + y * y + z * z)
         self._q = (w * inv, x * inv, y * inv, z * inv)
         # g_lp into the new body frame, v' = R(h)^T v = v - 2 cw (h x v) + 2 h x (h x v), then the LCF correction's
         # share of the step undone (first order; c is ~1e-5 rad): g_lp follows the gyro only.
