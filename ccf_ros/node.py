@@ -1,11 +1,19 @@
-"""``ccf_node``: the ROS 2 orientation filter. A thin adapter: messages -> :class:`~ccf_ros.engine.ImuEngine` -> messages.
+"""``ccf_node`` and the imu_tools drop-ins: the ROS 2 orientation filter. A thin adapter: messages ->
+:class:`~ccf_ros.engine.ImuEngine` -> messages.
 
 Subscribes ``imu/data_raw`` (sensor_msgs/Imu) and ``imu/mag`` (sensor_msgs/MagneticField); publishes ``imu/data``
-(input Imu with orientation and covariance), ``imu/gyro_bias`` (Vector3Stamped, rad/s), optionally ``imu/rpy``
-(Vector3Stamped, rad), and ``/diagnostics``. Service ``~/reset`` (std_srvs/Trigger).
+(input Imu with orientation and covariance), ``imu/gyro_bias`` (Vector3Stamped, rad/s), with ``publish_debug_topics``
+``imu/rpy/filtered`` and ``imu/rpy/raw`` (Vector3Stamped, rad; the complementary drop-in: ``imu/rpy/filtered`` and
+``imu/steady_state``, std_msgs/Bool), with ``publish_tf`` the orientation on ``/tf`` (needs tf2_msgs), and
+``/diagnostics``. Service ``~/reset`` (std_srvs/Trigger).
+
+One class, three executables: ``ccf_node``, ``imu_filter_madgwick_node`` and ``complementary_filter_node`` differ
+only by their :class:`~ccf_ros.compat.NodeProfile` (default node name, topics, parameter defaults and read-only
+flags, QoS overrides). Every executable declares every parameter (:func:`ccf_ros.settings.all_defaults`).
 
 This module keeps only what needs ROS: callbacks, message conversion, publishers and parameters. The IMU/magnetometer
-delivery order is :mod:`ccf_ros.sync`, input statistics and diagnostics rules are :mod:`ccf_ros.node_support`.
+delivery order is :mod:`ccf_ros.sync`; parameter values, input statistics and diagnostics rules are
+:mod:`ccf_ros.node_support`; the profiles are :mod:`ccf_ros.compat`.
 
 Messages are taken serialized (``raw=True``): stamp, rate and specific force are read from the little-endian CDR
 bytes, the output is the input's bytes with orientation and covariance patched in, and the gyro-bias message is the
@@ -15,6 +23,7 @@ and answered as a message. Either way the values are exactly the engine's, as in
 
 from __future__ import annotations
 
+import importlib
 import math
 import time
 from collections.abc import Callable
@@ -22,7 +31,7 @@ from typing import Any
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import Vector3Stamped
+from geometry_msgs.msg import TransformStamped, Vector3Stamped
 from rcl_interfaces.msg import (
     FloatingPointRange,
     IntegerRange,
@@ -31,20 +40,43 @@ from rcl_interfaces.msg import (
 )
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import PublisherEventCallbacks
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import HistoryPolicy, QoSPolicyKind, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos_overriding_options import InvalidQosOverridesError, QoSOverridingOptions
 from rclpy.serialization import deserialize_message
 from rclpy.subscription import Subscription
 from sensor_msgs.msg import Imu, MagneticField
+from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
+from .compat import (
+    MEANINGLESS_GAINS,
+    PROFILES,
+    NodeProfile,
+    apply_do_bias_estimation,
+    bias_estimation_notice,
+    defaults_for,
+    gain_notices,
+    tf_transform,
+)
 from .core.base import ANSWERED_BELOW
+from .core.quaternion import from_xyzw, rpy_of
 from .core.registry import FILTERS
 from .engine import ImuEngine, Output
-from .node_support import Diagnostics, InputStats, diagnostics
+from .node_support import (
+    PER_AXIS,
+    Diagnostics,
+    InputStats,
+    coerce_parameter,
+    diagnostics,
+    imu_header,
+    parameter_range,
+    raw_rpy,
+)
 from .offline.fastcdr import (
     LINEAR_ACCELERATION,
     LITTLE_ENDIAN_CDR,
@@ -55,26 +87,20 @@ from .offline.fastcdr import (
     vector3_stamped,
 )
 from .offline.messages import fill_imu, stamp_s
-from .settings import DESCRIPTIONS, all_defaults, build
+from .settings import DESCRIPTIONS, build
 from .sync import HOLD_S, ImuMagSync
-
-#: Parameters that only make sense at start-up.
-READ_ONLY = {'qos_reliability', 'qos_depth'}
-#: Parameters whose value may be a number or a list of three (per axis).
-PER_AXIS = {'kp', 'ki', 'alpha', 'lcf_alpha'}
-#: Upper bounds of positive real parameters (descriptors show them; the core validates precisely).
-_RANGES: dict[str, tuple[float, float]] = {
-    'alpha': (0.0, 1.0),
-    'mag_norm_tol': (0.0, 10.0),
-    'mag_dip_tol_rad': (0.0, math.pi),
-    'constant_dt': (0.0, 10.0),
-    'orientation_stddev': (0.0, math.pi),
-    'gyro_bias_rate_hz': (0.0, 100000.0),
-}
-
 
 #: Depth of the output publishers (reliable, volatile: the rclpy defaults).
 OUTPUT_DEPTH = 10
+#: QoS of /tf, as tf2_ros' TransformBroadcaster (DynamicBroadcasterQoS: reliable, volatile, keep last 100).
+TF_QOS = QoSProfile(depth=100)
+#: The QoS policies a profile with ``qos_overrides`` lets a parameters file override on its input subscriptions
+#: (imu_complementary_filter's set).
+QOS_OVERRIDE_POLICIES = (QoSPolicyKind.DEPTH, QoSPolicyKind.DURABILITY, QoSPolicyKind.HISTORY,
+                         QoSPolicyKind.RELIABILITY)
+#: The one warning when publish_tf is asked for and tf2_msgs cannot be imported.
+TF_UNAVAILABLE = ('publish_tf is true but tf2_msgs cannot be imported (a plain pip install has no tf2_msgs; in a '
+                  'sourced ROS 2 workspace it is there): no transform is published on /tf; everything else runs')
 
 
 def input_qos(reliability: str, depth: int) -> QoSProfile:
@@ -89,6 +115,15 @@ def input_qos(reliability: str, depth: int) -> QoSProfile:
     )
 
 
+def tf_message_type() -> type[Any] | None:
+    """tf2_msgs/TFMessage, or None where tf2_msgs is not installed (the PyPI wheels have no tf2_msgs)."""
+    try:
+        msg_type: type[Any] = importlib.import_module('tf2_msgs.msg').TFMessage
+    except (ImportError, AttributeError):
+        return None
+    return msg_type
+
+
 Vec3 = tuple[float, float, float]
 #: Bytes of an Imu from ``orientation`` on: 4 + 9 + 3 + 9 + 3 + 9 float64.
 _IMU_TAIL = LINEAR_ACCELERATION + 96
@@ -97,25 +132,21 @@ _IMU_TAIL = LINEAR_ACCELERATION + 96
 Held = tuple[float, bytes | Imu, int, Vec3, Vec3]
 
 
-def _rpy(xyzw: tuple[float, float, float, float]) -> Vec3:
-    """Roll, pitch, yaw (rad) of an orientation in message order."""
-    x, y, z, w = xyzw
-    return (
-        math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y)),
-        math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x)))),
-        math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)),
-    )
-
-
-def _descriptor(name: str, default: Any) -> ParameterDescriptor:
-    d = ParameterDescriptor(description=DESCRIPTIONS.get(name, ''), read_only=name in READ_ONLY)
+def _descriptor(name: str, default: Any, read_only: bool) -> ParameterDescriptor:
+    d = ParameterDescriptor(description=DESCRIPTIONS.get(name, ''), read_only=read_only)
     if name in PER_AXIS:
         d.dynamic_typing = True
+        d.additional_constraints = 'a number or a list of 3 numbers'
     elif isinstance(default, tuple):
-        d.additional_constraints = f'{len(default)} numbers >= 0'
+        # Dynamic: [1, 0, 0] (integers) is as good as [1.0, 0.0, 0.0]; the node checks the values.
+        d.dynamic_typing = True
+        d.additional_constraints = f'{len(default)} numbers'
     elif isinstance(default, float):
-        lo, hi = _RANGES.get(name, (0.0, 1e9))
+        # Dynamic: rclpy refuses an integer for a double-typed parameter; the node accepts and converts it.
+        d.dynamic_typing = True
+        lo, hi = parameter_range(name)
         d.floating_point_range = [FloatingPointRange(from_value=lo, to_value=hi, step=0.0)]
+        d.additional_constraints = 'a number (an integer is accepted)'
     elif isinstance(default, int) and not isinstance(default, bool):
         d.integer_range = [IntegerRange(from_value=1, to_value=100000, step=1)]
     elif name == 'formulation':
@@ -128,92 +159,160 @@ def _descriptor(name: str, default: Any) -> ParameterDescriptor:
 
 
 class CcfNode(Node):
-    """The orientation filter node; all filtering is done by the shared engine, exactly as ``ccf replay`` does."""
+    """The orientation filter node; all filtering is done by the shared engine, exactly as ``ccf replay`` does.
+
+    Args:
+        profile: the executable it presents itself as (a :data:`ccf_ros.compat.PROFILES` key or a profile).
+        node_name: node name instead of the profile's default (a ``__node:=`` remap still wins).
+        **kwargs: passed to :class:`rclpy.node.Node` (``context``, ``parameter_overrides``, ...).
+
+    Raises:
+        ParameterError: an invalid start-up parameter value (rclpy's ParameterException for a wrong type).
+    """
 
     #: Longest wait (s) of an IMU sample for its same-stamp magnetometer sample (see :mod:`ccf_ros.sync`).
     HOLD_S = HOLD_S
     #: Period of /diagnostics, s.
     DIAGNOSTICS_PERIOD_S = 1.0
 
-    def __init__(self, **kwargs: Any) -> None:
-        super().__init__('ccf_node', **kwargs)
-        for name, default in all_defaults().items():
-            # Tuples (noise vectors) are declared as double arrays.
+    def __init__(self, profile: NodeProfile | str = 'ccf_node', *, node_name: str | None = None,
+                 **kwargs: Any) -> None:
+        self.profile = PROFILES[profile] if isinstance(profile, str) else profile
+        super().__init__(node_name or self.profile.node_name, **kwargs)
+        self._defaults = defaults_for(self.profile)
+        read_only = self.profile.read_only
+        for name, default in self._defaults.items():
+            # Tuples (noise vectors) are declared as arrays.
             value = list(default) if isinstance(default, tuple) else default
-            self.declare_parameter(name, value, _descriptor(name, default))
-        self._settings = {name: self.get_parameter(name).value for name in all_defaults()}
+            self.declare_parameter(name, value, _descriptor(name, default, name in read_only))
         # Invalid start-up values: say which and stop, rather than run with something else.
-        filt, adapter = build(self._filter_settings(self._settings), strict=False)
+        self._settings = {name: coerce_parameter(name, self.get_parameter(name).value, default)
+                          for name, default in self._defaults.items()}
+        filt, adapter = build(self._effective(self._settings), strict=False)
         self.engine = ImuEngine(filt, adapter)
         self.sync: ImuMagSync[Held] = ImuMagSync(self.HOLD_S)
         self.stats = InputStats()
+        self._noticed: set[str] = set()
+        self._last_bias_t = -math.inf
+        self._last_warn = 0.0
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
 
         # Every entity is in the executor's wait set, rebuilt in Python for every message: the node has few. The
         # secondary publishers go without rclpy's default QoS-event handlers (two waitables each, which only log),
-        # imu/rpy exists only when asked for, and one timer serves diagnostics and held samples.
-        quiet = PublisherEventCallbacks(use_default_callbacks=False)
-        qos = input_qos(str(self._settings['qos_reliability']), int(self._settings['qos_depth']))
-        self.pub_imu = self.create_publisher(Imu, 'imu/data', OUTPUT_DEPTH)
-        self.pub_bias = self.create_publisher(Vector3Stamped, 'imu/gyro_bias', OUTPUT_DEPTH, event_callbacks=quiet)
+        # debug and TF publishers exist only when asked for, and one timer serves diagnostics and held samples.
+        self._quiet = PublisherEventCallbacks(use_default_callbacks=False)
+        self.pub_imu = self.create_publisher(Imu, self.profile.out_topic, OUTPUT_DEPTH)
+        self.pub_bias = self.create_publisher(Vector3Stamped, 'imu/gyro_bias', OUTPUT_DEPTH,
+                                              event_callbacks=self._quiet)
         self.pub_rpy: Publisher | None = None
-        self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10, event_callbacks=quiet)
+        self.pub_rpy_raw: Publisher | None = None
+        self.pub_steady: Publisher | None = None
+        self.pub_tf: Publisher | None = None
+        self._tf_type: type[Any] | None = None
+        self._tf_warned = False
+        self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10, event_callbacks=self._quiet)
         self._cache_settings()
         # The executor serves ready subscriptions in creation order: magnetometer first, so that a magnetometer
-        # sample and the IMU sample with the same stamp pair as they do in `ccf replay` (bag order).
-        self.sub_mag = self.create_subscription(MagneticField, 'imu/mag', self._on_mag_raw, qos, raw=True)
-        self.sub_imu = self.create_subscription(Imu, 'imu/data_raw', self._on_imu_raw, qos, raw=True)
-        self._take_mag, self._take_imu = self._taker(self.sub_mag), self._taker(self.sub_imu)
+        # sample and the IMU sample with the same stamp pair as they do in `ccf replay` (bag order). A profile whose
+        # use_mag is read-only and false does not subscribe it (as imu_tools).
+        self.sub_mag: Subscription | None = None
+        if self._settings['use_mag'] or 'use_mag' not in read_only:
+            self.sub_mag = self.create_subscription(MagneticField, self.profile.mag_topic, self._on_mag_raw,
+                                                    self._input_qos(), raw=True,
+                                                    qos_overriding_options=self._qos_overrides())
+        self.sub_imu = self.create_subscription(Imu, self.profile.imu_topic, self._on_imu_raw, self._input_qos(),
+                                                raw=True, qos_overriding_options=self._qos_overrides())
+        self._take_mag = self._taker(self.sub_mag) if self.sub_mag is not None else _nothing
+        self._take_imu = self._taker(self.sub_imu)
         self.srv_reset = self.create_service(Trigger, '~/reset', self._on_reset)
         self._last_diag = time.monotonic()
         # A steady clock: held samples and diagnostics keep their pace with use_sim_time too.
         self.timer = self.create_timer(self.DIAGNOSTICS_PERIOD_S, self._on_timer,
                                        clock=Clock(clock_type=ClockType.STEADY_TIME))
 
-        self._last_bias_t = -math.inf
-        self._last_warn = 0.0
+        self._log_notices(MEANINGLESS_GAINS)
+        notice = bias_estimation_notice(self._settings, self.profile)
+        if notice:
+            self.get_logger().info(notice)
+        inputs = self.sub_imu.topic_name + (f' and {self.sub_mag.topic_name}' if self.sub_mag is not None else '')
         self.get_logger().info(
-            f'ccf_node: filter={self._settings["filter"]} formulation={self._settings["formulation"]} '
-            f'world_frame={self._settings["world_frame"]} use_mag={self._settings["use_mag"]}, '
-            f'listening on {self.sub_imu.topic_name} and {self.sub_mag.topic_name}'
+            f'{self.profile.executable}: filter={self._settings["filter"]} '
+            f'formulation={self._settings["formulation"]} world_frame={self._settings["world_frame"]} '
+            f'use_mag={self._settings["use_mag"]}, listening on {inputs}'
         )
 
-    @staticmethod
-    def _filter_settings(settings: dict[str, Any]) -> dict[str, Any]:
-        return {k: v for k, v in settings.items() if k not in READ_ONLY and k != 'publish_debug_topics'}
+    def _input_qos(self) -> QoSProfile:
+        """A new input profile per subscription (rclpy writes the overrides into the profile it is given)."""
+        return input_qos(str(self._settings['qos_reliability']), int(self._settings['qos_depth']))
+
+    def _qos_overrides(self) -> QoSOverridingOptions | None:
+        return QoSOverridingOptions(QOS_OVERRIDE_POLICIES) if self.profile.qos_overrides else None
+
+    def _effective(self, settings: dict[str, Any]) -> dict[str, Any]:
+        """The settings the engine is built from: imu_tools' do_bias_estimation applied."""
+        values = dict(settings)
+        apply_do_bias_estimation(values, self.profile)
+        return values
 
     def _cache_settings(self) -> None:
-        """Settings read per message, as attributes (a dict lookup per message is measurable)."""
-        rate = float(self._settings['gyro_bias_rate_hz'])
+        """Settings read per message, as attributes (a dict lookup per message is measurable); publishers that
+        were switched on are made here."""
+        st = self._settings
+        rate = float(st['gyro_bias_rate_hz'])
         self._bias_period = 1.0 / rate if rate > 0.0 else 0.0
-        self._debug = bool(self._settings['publish_debug_topics'])
-        use_mag = bool(self._settings['use_mag'])
+        use_mag = bool(st['use_mag'])
         if use_mag and not self.sync.enabled:
             self.sync.reset()  # switched on: learn the magnetometer's timing from scratch
         self.sync.enabled = use_mag
-        if self._debug and self.pub_rpy is None:
-            self.pub_rpy = self.create_publisher(Vector3Stamped, 'imu/rpy', OUTPUT_DEPTH,
-                                                 event_callbacks=PublisherEventCallbacks(use_default_callbacks=False))
+        self._use_mag = use_mag
+        self._world_frame = str(st['world_frame'])
+        debug = bool(st['publish_debug_topics'])
+        prof = self.profile
+        if debug and self.pub_rpy is None and prof.rpy_filtered_topic:
+            self.pub_rpy = self._quiet_publisher(Vector3Stamped, prof.rpy_filtered_topic)
+        if debug and self.pub_rpy_raw is None and prof.rpy_raw_topic:
+            self.pub_rpy_raw = self._quiet_publisher(Vector3Stamped, prof.rpy_raw_topic)
+        steady = debug and st['do_bias_estimation'] is not False and prof.steady_state_topic is not None
+        if steady and self.pub_steady is None and prof.steady_state_topic:
+            self.pub_steady = self._quiet_publisher(Bool, prof.steady_state_topic)
+        self._debug = debug
+        self._steady = steady
+        self._fixed_frame = str(st['fixed_frame'])
+        self._reverse_tf = bool(st['reverse_tf'])
+        if st['publish_tf'] and self.pub_tf is None and not self._tf_warned:
+            self._tf_type = tf_message_type()
+            if self._tf_type is None:
+                self._tf_warned = True
+                self.get_logger().warning(TF_UNAVAILABLE)
+            else:
+                self.pub_tf = self.create_publisher(self._tf_type, '/tf', TF_QOS, event_callbacks=self._quiet)
+        self._tf = bool(st['publish_tf']) and self.pub_tf is not None
+
+    def _quiet_publisher(self, msg_type: Any, topic: str) -> Publisher:
+        return self.create_publisher(msg_type, topic, OUTPUT_DEPTH, event_callbacks=self._quiet)
 
     # --- parameters -------------------------------------------------------------------------------------------
     def _validate_parameters(self, params: list[Parameter]) -> SetParametersResult:
         merged = dict(self._settings)
-        for p in params:
-            if p.name in merged:
-                merged[p.name] = p.value
         try:
-            build(self._filter_settings(merged), strict=False)
+            for p in params:
+                if p.name in self._defaults:
+                    merged[p.name] = coerce_parameter(p.name, p.value, self._defaults[p.name])
+            build(self._effective(merged), strict=False)
         except ValueError as err:
             return SetParametersResult(successful=False, reason=str(err))
         return SetParametersResult(successful=True)
 
     def _apply_parameters(self, params: list[Parameter]) -> None:
+        names = [p.name for p in params if p.name in self._defaults]
+        if not names:
+            return  # e.g. the QoS override parameters, declared when the subscriptions are made
         old = dict(self._settings)
         for p in params:
-            if p.name in self._settings:
-                self._settings[p.name] = p.value
-        filt, adapter = build(self._filter_settings(self._settings), strict=False)
+            if p.name in self._defaults:
+                self._settings[p.name] = coerce_parameter(p.name, p.value, self._defaults[p.name])
+        filt, adapter = build(self._effective(self._settings), strict=False)
         if type(filt) is type(self.engine.filter):
             # Same filter: new gains apply from the next sample, the orientation is kept.
             self.engine.filter.set_params(filt.params)
@@ -226,6 +325,18 @@ class CcfNode(Node):
             self._answer_all(self.sync.flush(time.monotonic()))
         changed = {k: v for k, v in self._settings.items() if old.get(k) != v}
         self.get_logger().info(f'parameters applied: {changed}')
+        self._log_notices(names)
+        if 'do_bias_estimation' in changed:
+            notice = bias_estimation_notice(self._settings, self.profile)
+            self.get_logger().info(notice or 'do_bias_estimation=true: rest_bias and motion_bias apply')
+
+    def _log_notices(self, names: Any) -> None:
+        """Each imu_tools gain without a ccf meaning: one warning the first time it is set to a non-default value."""
+        for name in names:
+            if name in MEANINGLESS_GAINS and name not in self._noticed:
+                for line in gain_notices({name: self._settings[name]}):
+                    self._noticed.add(name)
+                    self.get_logger().warning(line)
 
     # --- data ---------------------------------------------------------------------------------------------------
     #: Most messages taken in one callback (then the executor serves timers and services again).
@@ -349,7 +460,11 @@ class CcfNode(Node):
             self._answer(*item)
 
     def _answer(self, t: float, data: bytes | Imu, off: int, gyr: Vec3, acc: Vec3) -> None:
-        """Run one IMU sample through the engine and publish its answer (same bytes + orientation + covariance)."""
+        """Run one IMU sample through the engine and publish its answer (same bytes + orientation + covariance).
+
+        Every sample is answered once an orientation exists: one that cannot advance the filter (repeated or
+        backward stamp, non-finite rate) with the current orientation, counted in the diagnostics.
+        """
         out = self.engine.on_imu(t, gyr, acc)
         if out is None:
             self._warn_throttled(f'sample at t={t:.6f} s skipped: no orientation yet (no valid accelerometer sample)')
@@ -365,12 +480,15 @@ class CcfNode(Node):
             self.pub_imu.publish(bytes(buf))
             if self._bias_due(t):
                 self.pub_bias.publish(vector3_stamped(data, off, out.bias))
-            if self._debug and self.pub_rpy is not None:
-                self.pub_rpy.publish(vector3_stamped(data, off, _rpy(out.orientation_xyzw)))
+            if self._debug:
+                self._publish_debug(t, data, off, out, acc)
+            if self._tf:
+                sec, nanosec, frame_id = imu_header(data)
+                self._publish_tf(sec, nanosec, frame_id, out)
         else:
-            self._answer_msg(t, data, out)
+            self._answer_msg(t, data, out, acc)
 
-    def _answer_msg(self, t: float, msg: Imu, out: Output) -> None:
+    def _answer_msg(self, t: float, msg: Imu, out: Output, acc: Vec3) -> None:
         """The same answer built as messages (input that is not little-endian CDR)."""
         fill_imu(msg, out, list(out.covariance))
         self.pub_imu.publish(msg)
@@ -378,10 +496,45 @@ class CcfNode(Node):
             b = Vector3Stamped(header=msg.header)
             b.vector.x, b.vector.y, b.vector.z = out.bias
             self.pub_bias.publish(b)
-        if self._debug and self.pub_rpy is not None:
-            r = Vector3Stamped(header=msg.header)
-            r.vector.x, r.vector.y, r.vector.z = _rpy(out.orientation_xyzw)
-            self.pub_rpy.publish(r)
+        if self._debug:
+            self._publish_debug(t, msg, -1, out, acc)
+        if self._tf:
+            stamp = msg.header.stamp
+            self._publish_tf(stamp.sec, stamp.nanosec, msg.header.frame_id, out)
+
+    def _publish_debug(self, t: float, src: bytes | Imu, off: int, out: Output, acc: Vec3) -> None:
+        """imu/rpy/filtered (the output's roll, pitch, yaw), imu/rpy/raw (those of this sample's accelerometer and
+        magnetometer alone) and imu/steady_state (at rest), as the profile has them, with the input's header."""
+
+        def stamped(v: Vec3) -> bytes | Vector3Stamped:
+            if isinstance(src, bytes):
+                return vector3_stamped(src, off, v)
+            m = Vector3Stamped(header=src.header)
+            m.vector.x, m.vector.y, m.vector.z = v
+            return m
+
+        if self.pub_rpy is not None:
+            self.pub_rpy.publish(stamped(rpy_of(from_xyzw(*out.orientation_xyzw))))
+        if self.pub_rpy_raw is not None and self._use_mag:
+            # The magnetometer sample the engine paired with this one (calibrated; asking again changes nothing).
+            rpy = raw_rpy(acc, self.engine.pairer.get(t), self._world_frame)
+            if rpy is not None:
+                self.pub_rpy_raw.publish(stamped(rpy))
+        if self._steady and self.pub_steady is not None:
+            self.pub_steady.publish(Bool(data=bool(self.engine.filter.flags.at_rest)))
+
+    def _publish_tf(self, sec: int, nanosec: int, frame_id: str, out: Output) -> None:
+        """The output orientation (yaw offset included, as imu/data) as the transform fixed_frame -> IMU frame (or
+        its inverse with reverse_tf), stamped with the input's stamp."""
+        parent, child, (x, y, z, w) = tf_transform(out.orientation_xyzw, frame_id, self._fixed_frame,
+                                                   self._reverse_tf)
+        tr = TransformStamped()
+        tr.header.stamp.sec, tr.header.stamp.nanosec = sec, nanosec
+        tr.header.frame_id, tr.child_frame_id = parent, child
+        r = tr.transform.rotation
+        r.x, r.y, r.z, r.w = x, y, z, w
+        assert self.pub_tf is not None and self._tf_type is not None
+        self.pub_tf.publish(self._tf_type(transforms=[tr]))
 
     def _bias_due(self, t: float) -> bool:
         """imu/gyro_bias at up to gyro_bias_rate_hz (by stamp; a stamp going back publishes at once)."""
@@ -431,23 +584,47 @@ class CcfNode(Node):
         self.pub_diag.publish(arr)
 
 
-def main(args: list[str] | None = None) -> None:
-    """Entry point of ``ccf_node`` / ``ros2 run ccf_ros ccf_node``."""
+def _nothing() -> None:
+    return None
+
+
+def _is_startup_error(err: BaseException) -> bool:
+    """An error in the user's start-up parameters (shown as one line), not a bug."""
+    if isinstance(err, (ValueError, ParameterException, InvalidQosOverridesError)):
+        return True
+    # rclpy's QoS override of an unknown policy value (e.g. reliability: sometimes)
+    return isinstance(err, RuntimeError) and str(err).startswith('Unexpected QoS override')
+
+
+def main(args: list[str] | None = None, profile: str = 'ccf_node') -> None:
+    """Entry point of ``ccf_node`` / ``ros2 run ccf_ros ccf_node`` (and, with ``profile``, of the drop-ins)."""
     node = None
     try:
         rclpy.init(args=args)
-        node = CcfNode()
+        node = CcfNode(profile)
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except ValueError as err:
+    except Exception as err:
+        if not _is_startup_error(err):
+            raise
         # Invalid parameters at start-up: one clear line, non-zero exit.
-        print(f'ccf_node: error: {err}', flush=True)
+        print(f'{profile}: error: {err}', flush=True)
         raise SystemExit(2) from None
     finally:
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+
+
+def imu_filter_madgwick_main(args: list[str] | None = None) -> None:
+    """Entry point of ``imu_filter_madgwick_node``: the ccf filter as imu_filter_madgwick presents itself."""
+    main(args, 'imu_filter_madgwick_node')
+
+
+def complementary_filter_main(args: list[str] | None = None) -> None:
+    """Entry point of ``complementary_filter_node``: the ccf filter as imu_complementary_filter presents itself."""
+    main(args, 'complementary_filter_node')
 
 
 if __name__ == '__main__':

@@ -4,12 +4,14 @@ diagnostics, big-endian input, clean exit. On the simulated bag (runs without ..
 from __future__ import annotations
 
 import copy
+import itertools
 import os
 import shutil
 import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -335,7 +337,7 @@ def test_parameters_validated_live_and_applied_without_reset(context, inputs):
     node = reliable_node(context)
     h = Harness(context, node)
     rpy = []
-    h.io.create_subscription(Vector3Stamped, 'imu/rpy', rpy.append, RELIABLE)
+    h.io.create_subscription(Vector3Stamped, 'imu/rpy/filtered', rpy.append, RELIABLE)
     try:
         h.wait_connected()
         h.feed(inputs[:2000], 1000)
@@ -356,7 +358,7 @@ def test_parameters_validated_live_and_applied_without_reset(context, inputs):
         # The debug topic can be switched on while running.
         assert node.pub_rpy is None
         assert node.set_parameters([Parameter('publish_debug_topics', value=True)])[0].successful
-        h.spin_until(lambda: h.io.count_publishers('imu/rpy') > 0 and node.pub_rpy.get_subscription_count() > 0)
+        h.spin_until(lambda: h.io.count_publishers('imu/rpy/filtered') > 0 and node.pub_rpy.get_subscription_count() > 0)
         h.feed(inputs[2000:2200], 1100)
         assert h.spin_until(lambda: len(rpy) == 100)
         r = node.set_parameters([Parameter('formulation', value='euler'), Parameter('kp', value=[1.0, 2.0, 3.0])])[0]
@@ -408,7 +410,7 @@ def test_reset_service_and_diagnostics(context, inputs):
 
 
 def _node_command():
-    exe = shutil.which('ccf_node', path=os.path.dirname(sys.executable))
+    exe = shutil.which('ccf_node', path=str(Path(sys.executable).parent))
     return [exe] if exe else [sys.executable, '-m', 'ccf_ros.node']
 
 
@@ -453,7 +455,7 @@ def _engine_over_bag(bag, imu_first_after_silence=False):
     _, messages = load_messages(bag, [IMU, MAG])
     if imu_first_after_silence:
         mags = [i for i, m in enumerate(messages) if m[1] == MAG]
-        back = next(b for a, b in zip(mags, mags[1:], strict=False) if b - a > 100)
+        back = next(b for a, b in itertools.pairwise(mags) if b - a > 100)
         assert messages[back + 1][1] == IMU
         messages[back], messages[back + 1] = messages[back + 1], messages[back]
     eng = ImuEngine(*build({}, strict=False))
@@ -521,10 +523,10 @@ def test_debug_topic_fixed_covariance_and_constant_dt(context, inputs):
     node = reliable_node(context, publish_debug_topics=True, orientation_stddev=0.02, constant_dt=1 / 286.0)
     h = Harness(context, node)
     rpy = []
-    h.io.create_subscription(Vector3Stamped, 'imu/rpy', rpy.append, RELIABLE)
+    h.io.create_subscription(Vector3Stamped, 'imu/rpy/filtered', rpy.append, RELIABLE)
     try:
         h.wait_connected()
-        h.spin_until(lambda: h.io.count_publishers('imu/rpy') > 0 and node.pub_rpy.get_subscription_count() > 0)
+        h.spin_until(lambda: h.io.count_publishers('imu/rpy/filtered') > 0 and node.pub_rpy.get_subscription_count() > 0)
         # With constant_dt the header stamps are ignored: zeroed stamps must not stop the filter.
         msgs = [(topic, copy.deepcopy(msg)) for topic, msg in inputs[:1000]]
         for _, msg in msgs:
