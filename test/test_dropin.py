@@ -477,9 +477,25 @@ def test_ccf_node_switches_debug_topics_at_run_time(context):
         node.destroy_node()
 
 
-def test_launch_files_are_python():
-    for path in sorted((Path(__file__).resolve().parents[1] / 'launch').glob('*.launch.py')):
+def test_launch_files_name_the_executables_as_imu_tools_launch_files_do():
+    """launch_ros is not in the pip install: the files are checked as Python and for what they launch."""
+    import ast
+
+    launch = Path(__file__).resolve().parents[1] / 'launch'
+    for path in sorted(launch.glob('*.launch.py')):
         compile(path.read_text(), str(path), 'exec')
+    for file, executable, name in (('imu_filter.launch.py', 'imu_filter_madgwick_node', 'imu_filter'),
+                                   ('complementary_filter.launch.py', 'complementary_filter_node',
+                                    'complementary_filter_gain_node')):
+        calls = [n for n in ast.walk(ast.parse((launch / file).read_text()))
+                 if isinstance(n, ast.Call) and getattr(n.func, 'id', '') == 'Node']
+        (node,) = calls
+        kw = {k.arg: k.value.value for k in node.keywords if isinstance(k.value, ast.Constant)}
+        assert kw == {'package': 'ccf_ros', 'executable': executable, 'name': name, 'output': 'screen'}
+        assert executable in PROFILES
+    setup = (launch.parent / 'setup.py').read_text()
+    for profile in PROFILES.values():
+        assert f"'{profile.executable} = ccf_ros.node:" in setup
 
 
 # --- the real executable with imu_tools' own file -----------------------------------------------------------------
