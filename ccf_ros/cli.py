@@ -55,12 +55,15 @@ def _settings(args: argparse.Namespace) -> tuple[dict[str, Any], dict[str, Any]]
 
 
 def _engine(args: argparse.Namespace) -> Any:
+    from .compat import PROFILES, apply_do_bias_estimation
     from .core.registry import SELECTORS
     from .engine import ImuEngine
     from .settings import build
 
     from_files, given = _settings(args)
     merged = {**from_files, **given}
+    # imu_tools' do_bias_estimation means the same offline as in the node.
+    apply_do_bias_estimation(merged, PROFILES['ccf_node'])
     if from_files:
         # A parameters file holds the parameters of every filter; only the names given on the command line must
         # apply to the selected one.

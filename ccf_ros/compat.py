@@ -120,7 +120,8 @@ def defaults_for(profile: NodeProfile) -> dict[str, Any]:
 def apply_do_bias_estimation(values: dict[str, Any], profile: NodeProfile) -> None:
     """imu_tools' ``do_bias_estimation: false`` switches bias learning off (and, for the complementary filter, the
     bias-corrected rate). Edits ``values`` in place."""
-    if values.get('do_bias_estimation', True) is False:
+    flag = values.get('do_bias_estimation', True)
+    if flag is False or (isinstance(flag, str) and flag.strip().lower() in ('false', '0', 'no', 'off')):
         values['rest_bias'] = False
         values['motion_bias'] = False
         if profile.bias_from_do_bias_estimation:

@@ -230,6 +230,8 @@ def _build(settings: Mapping[str, Any], *, strict: bool) -> tuple[OrientationFil
     adapter: dict[str, Any] = {}
     known = all_param_names()
     for name, value in settings.items():
+        if name.startswith('qos_overrides.'):
+            continue  # rclpy's QoS override parameters: the node's business (a YAML written for it replays too)
         if name in ADAPTER_DEFAULTS:
             adapter[name] = value
         elif name in known:

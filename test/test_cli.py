@@ -180,6 +180,7 @@ def test_bad_params_files_are_one_line(sim_bag, tmp_path, capsys):
 def test_other_input_errors_are_one_line(sim_bag, tmp_path, capsys):
     out = tmp_path / 'exists'
     out.mkdir()
+    (tmp_path / 'afile').write_text('')
     cases = [
         (['replay', str(sim_bag), '-o', str(out)], 'exists; pass --overwrite'),
         (['replay', str(sim_bag), '-o', str(tmp_path / 'x'), '--imu-topic', '/nope'], '/nope'),
@@ -188,7 +189,7 @@ def test_other_input_errors_are_one_line(sim_bag, tmp_path, capsys):
         (['replay', str(sim_bag), '-o', str(tmp_path / 'x'), '--mag-topic', '/imu/data_raw'],
          'expected sensor_msgs/msg/MagneticField'),
         (['replay', str(tmp_path / 'nothing'), '-o', str(tmp_path / 'x')], 'no such bag'),
-        (['replay', str(sim_bag), '-o', str(tmp_path / 'no' / 'dir')], 'cannot create'),
+        (['replay', str(sim_bag), '-o', str(tmp_path / 'afile' / 'dir')], 'cannot create'),  # a file as folder
         (['simulate', '-o', str(tmp_path / 's'), '--duration', '0'], 'must be > 0'),
         (['play', str(sim_bag), '--rate', '0'], '--rate must be > 0'),
         (['eval', str(sim_bag), '--reference', '/ground_truth/pose', '--json', str(tmp_path / 'no' / 'x.json')],
@@ -356,3 +357,16 @@ def test_help_exits_0(capsys):
             main(argv)
         assert info.value.code == 0
     assert '(default: mag_calibration.yaml)' in ' '.join(capsys.readouterr().out.split())
+
+
+def test_an_output_folder_that_does_not_exist_yet_is_created(sim_bag, tmp_path, capsys):
+    out = tmp_path / 'new' / 'folder' / 'out'
+    assert main(['replay', str(sim_bag), '-o', str(out)]) == 0
+    assert out.is_dir() and 'flags at the end: initialized' in capsys.readouterr().out
+
+
+def test_replay_reads_imu_tools_parameter_files_unchanged(sim_bag, tmp_path):
+    """imu_tools' own YAMLs (QoS overrides, gains, do_bias_estimation) apply to replay as to the node."""
+    data = Path(__file__).resolve().parent / 'data'
+    for name in ('imu_filter.yaml', 'filter_config.yaml'):
+        assert main(['replay', str(sim_bag), '-o', str(tmp_path / name), '--params-file', str(data / name)]) == 0

@@ -168,7 +168,7 @@ def staged(path: str | Path) -> Iterator[Path]:
     try:
         if stage.exists() or stage.is_symlink():
             _remove(stage)  # left over from a killed run
-        stage.mkdir()
+        stage.mkdir(parents=True)  # the output's folder too, if it does not exist yet
     except OSError as err:
         raise BagError(f'cannot create {stage}: {err.strerror}') from err
     try:

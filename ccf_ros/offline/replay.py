@@ -66,13 +66,22 @@ class ReplaySummary:
     n_no_acc: int = 0
     n_no_mag: int = 0
     wall_s: float = 0.0
+    #: samples answered with the current orientation although they could not advance the filter
+    n_answered_stale: int = 0
+    n_resets_jump: int = 0
+    n_nonfinite_resets: int = 0
+    #: the filter's flags after the last sample (:class:`~ccf_ros.core.base.FilterFlags` as a dict)
+    flags: dict[str, bool] = field(default_factory=dict)
 
     def line(self) -> str:
         skipped = ', '.join(f'{k} {v}' for k, v in sorted(self.skipped.items())) or 'none'
         rate = self.n_in / self.wall_s if self.wall_s > 0 else float('nan')
+        on = ', '.join(k for k, v in self.flags.items() if v) or 'none'
         return (
-            f'samples in {self.n_in}, out {self.n_out}, skipped: {skipped}; gyro-only (bad accelerometer) '
-            f'{self.n_no_acc}, no heading (bad magnetometer) {self.n_no_mag}; {rate:,.0f} samples/s'
+            f'samples in {self.n_in}, out {self.n_out}, skipped: {skipped} (these {self.n_answered_stale} answered with '
+            f'the current orientation); gyro-only (bad accelerometer) {self.n_no_acc}, no heading (bad magnetometer) '
+            f'{self.n_no_mag}; restarts after clock jumps {self.n_resets_jump}, non-finite state {self.n_nonfinite_resets}; '
+            f'flags at the end: {on}; {rate:,.0f} samples/s'
         )
 
 
@@ -122,6 +131,10 @@ def replay(
         n_no_acc=engine.n_no_acc,
         n_no_mag=engine.n_no_mag,
         wall_s=time.perf_counter() - t0,
+        n_answered_stale=engine.n_answered_stale,
+        n_resets_jump=engine.n_resets_jump,
+        n_nonfinite_resets=engine.n_nonfinite_resets,
+        flags=engine.filter.flags._asdict(),
     )
 
 
