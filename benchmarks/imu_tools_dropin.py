@@ -30,7 +30,6 @@ import math
 import os
 import random
 import shutil
-import signal
 import subprocess
 import sys
 import tempfile
@@ -49,9 +48,10 @@ import numpy as np  # noqa: E402
 from conftest import TRIAL, copy_bag  # noqa: E402
 
 from ccf_ros.core.metrics import summarize  # noqa: E402
-from ccf_ros.core.quaternion import from_xyzw, quat_mul  # noqa: E402
+from ccf_ros.core.quaternion import quat_mul  # noqa: E402
 from ccf_ros.offline.bagio import read_bools, read_orientations  # noqa: E402
 from ccf_ros.offline.evaluate import align, mask_at  # noqa: E402
+from ccf_ros.offline.live import Recorder, stop  # noqa: E402
 from ccf_ros.offline.params_file import load_params_file, load_params_files  # noqa: E402
 from ccf_ros.offline.play import load_messages, play  # noqa: E402
 
@@ -96,13 +96,8 @@ class Run:
 def run_node(cmd: list[str], node_name: str, bag: Path, topics: list[str], rate: float,
              param_names: list[str]) -> Run:
     """Start the node, play ``topics`` of ``bag`` into it, record imu/data, ask for its parameters, stop it."""
-    import rclpy
-    from diagnostic_msgs.msg import DiagnosticArray
-    from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import parameter_value_to_python
     from rclpy.parameter_client import AsyncParameterClient
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
-    from sensor_msgs.msg import Imu
 
     types, messages = load_messages(bag, topics)
     n_imu = sum(1 for _, topic, _ in messages if topic == IMU)
@@ -110,37 +105,6 @@ def run_node(cmd: list[str], node_name: str, bag: Path, topics: list[str], rate:
     log_lines: list[str] = []
     reader = threading.Thread(target=lambda: log_lines.extend(proc.stdout or []), daemon=True)
     reader.start()
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx)
-    node = rclpy.create_node('dropin_check', context=ctx)
-    received: list[tuple[float, tuple[float, float, float, float], tuple[float, float, float]]] = []
-
-    def on_out(msg: Imu) -> None:
-        s, o, a = msg.header.stamp, msg.orientation, msg.linear_acceleration
-        received.append((s.sec + s.nanosec * 1e-9, from_xyzw(o.x, o.y, o.z, o.w), (a.x, a.y, a.z)))
-
-    node.create_subscription(Imu, 'imu/data', on_out, QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE))
-    diagnostics: dict[str, str] = {}
-
-    def on_diag(msg: DiagnosticArray) -> None:
-        for st in msg.status:
-            if st.name.startswith(node_name):
-                diagnostics.clear()
-                diagnostics.update({kv.key: kv.value for kv in st.values})
-                diagnostics['message'] = st.message
-
-    node.create_subscription(DiagnosticArray, '/diagnostics', on_diag, 10)
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(node)
-    spinning = threading.Event()
-    spinning.set()
-
-    def spin() -> None:
-        while spinning.is_set():
-            ex.spin_once(timeout_sec=0.05)
-
-    th = threading.Thread(target=spin, daemon=True)
-    th.start()
 
     def wait(future, timeout: float = 10.0):
         deadline = time.time() + timeout
@@ -153,47 +117,31 @@ def run_node(cmd: list[str], node_name: str, bag: Path, topics: list[str], rate:
     reliability = '?'
     exit_code = None
     t0 = time.time()
-    try:
-        client = AsyncParameterClient(node, node_name)
-        if not client.wait_for_services(timeout_sec=30):
-            raise RuntimeError(f'{node_name} did not come up: {"".join(log_lines)[-2000:]}')
-        listed = set(wait(client.list_parameters([], 0)).result.names)
-        names = [n for n in param_names if n in listed]  # the others are not declared
-        got = wait(client.get_parameters(names))
-        params = {n: parameter_value_to_python(v) for n, v in zip(names, got.values, strict=True)}
-        described = wait(client.describe_parameters(names))
-        read_only = {d.name: d.read_only for d in described.descriptors}
-        deadline = time.time() + 30
-        while time.time() < deadline and not node.get_subscriptions_info_by_topic(IMU):
-            time.sleep(0.05)
-        infos = node.get_subscriptions_info_by_topic(IMU)
-        reliability = ','.join(sorted({i.qos_profile.reliability.name.lower() for i in infos}))
-        play(node, {t: types[t] for t in topics}, messages, rate=rate, qos_depth=10000, wait_matched_s=30.0)
-        deadline = time.time() + 120
-        last_n, quiet_since = -1, time.time()
-        while len(received) < n_imu and time.time() < deadline and time.time() - quiet_since < 3.0:
-            if len(received) != last_n:
-                last_n, quiet_since = len(received), time.time()
-            time.sleep(0.05)
-        time.sleep(1.2)  # one more diagnostics period
-    finally:
-        proc.send_signal(signal.SIGINT)
+    with Recorder('dropin_check', node_name) as rec:
         try:
-            exit_code = proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-        reader.join(timeout=5)
-        spinning.clear()
-        th.join(timeout=5)
-        ex.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown(context=ctx)
+            client = AsyncParameterClient(rec.node, node_name)
+            if not client.wait_for_services(timeout_sec=30):
+                raise RuntimeError(f'{node_name} did not come up: {"".join(log_lines)[-2000:]}')
+            listed = set(wait(client.list_parameters([], 0)).result.names)
+            names = [n for n in param_names if n in listed]  # the others are not declared
+            got = wait(client.get_parameters(names))
+            params = {n: parameter_value_to_python(v) for n, v in zip(names, got.values, strict=True)}
+            described = wait(client.describe_parameters(names))
+            read_only = {d.name: d.read_only for d in described.descriptors}
+            deadline = time.time() + 30
+            while time.time() < deadline and not rec.node.get_subscriptions_info_by_topic(IMU):
+                time.sleep(0.05)
+            infos = rec.node.get_subscriptions_info_by_topic(IMU)
+            reliability = ','.join(sorted({i.qos_profile.reliability.name.lower() for i in infos}))
+            play(rec.node, {t: types[t] for t in topics}, messages, rate=rate, qos_depth=10000, wait_matched_s=30.0)
+            rec.wait_answered(n_imu, 120.0, quiet_s=3.0)
+        finally:
+            exit_code = stop(proc)
+            reader.join(timeout=5)
+    t, q, lin = rec.arrays()
     return Run(
-        n_sent=n_imu,
-        t_s=np.array([r[0] for r in received]),
-        quat=np.array([r[1] for r in received]).reshape(-1, 4),
-        lin_acc=np.array([r[2] for r in received]).reshape(-1, 3),
-        params=params, read_only=read_only, sub_reliability=reliability, diagnostics=dict(diagnostics),
+        n_sent=n_imu, t_s=t, quat=q, lin_acc=lin,
+        params=params, read_only=read_only, sub_reliability=reliability, diagnostics=dict(rec.diagnostics),
         log=''.join(log_lines), exit_code=exit_code, wall_s=time.time() - t0,
     )
 

@@ -31,6 +31,16 @@ def need_shared(path: Path = SHARED) -> Path:
     return path
 
 
+@pytest.fixture
+def context():
+    """An rclpy context of its own on this run's domain (loopback only, see above), shut down afterwards."""
+    rclpy = pytest.importorskip('rclpy')
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=int(os.environ['ROS_DOMAIN_ID']))
+    yield ctx
+    rclpy.try_shutdown(context=ctx)
+
+
 @pytest.fixture(scope='session')
 def broad_trial() -> Path:
     """A real BROAD trial (rosbag2, mcap)."""

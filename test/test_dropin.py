@@ -57,16 +57,6 @@ TYPES = {bool: ParameterType.PARAMETER_BOOL, str: ParameterType.PARAMETER_STRING
          float: ParameterType.PARAMETER_DOUBLE}
 
 
-@pytest.fixture
-def context():
-    import os
-
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=int(os.environ['ROS_DOMAIN_ID']))
-    yield ctx
-    rclpy.try_shutdown(context=ctx)
-
-
 @pytest.fixture(scope='module')
 def inputs(sim_bag):
     from rosutil import read_inputs

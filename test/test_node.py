@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import copy
 import itertools
-import os
 import shutil
 import signal
 import subprocess
@@ -35,14 +34,6 @@ from ccf_ros.settings import all_defaults, build  # noqa: E402
 
 RELIABLE = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE)
 IMU, MAG = '/imu/data_raw', '/imu/mag'
-
-
-@pytest.fixture
-def context():
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=int(os.environ['ROS_DOMAIN_ID']))
-    yield ctx
-    rclpy.try_shutdown(context=ctx)
 
 
 class Harness:

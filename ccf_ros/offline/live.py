@@ -44,91 +44,132 @@ class LiveResult:
     diagnostics: dict[str, str] = field(default_factory=dict)
 
 
+class Recorder:
+    """A node of its own DDS context that records ``imu/data`` and a node's ``/diagnostics`` while it spins in a
+    thread; use as a context manager (``with Recorder(...) as rec:``).
+
+    Attributes:
+        received: ``(stamp s, orientation [w, x, y, z], linear_acceleration m/s²)`` per ``imu/data`` message.
+        diagnostics: the last diagnostics values of the node whose status name starts with ``diagnostics_of``, with
+            ``level`` and ``message``.
+    """
+
+    def __init__(self, name: str, diagnostics_of: str) -> None:
+        self._name = name
+        self._prefix = diagnostics_of
+        self.received: list[tuple[float, tuple[float, float, float, float], tuple[float, float, float]]] = []
+        self.diagnostics: dict[str, str] = {}
+
+    def __enter__(self) -> Recorder:
+        import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+        from sensor_msgs.msg import Imu
+
+        self.ctx = rclpy.Context()
+        rclpy.init(context=self.ctx)
+        self.node = rclpy.create_node(self._name, context=self.ctx)
+
+        def on_out(msg: Imu) -> None:
+            s, o, a = msg.header.stamp, msg.orientation, msg.linear_acceleration
+            self.received.append((seconds(s.sec, s.nanosec), from_xyzw(o.x, o.y, o.z, o.w), (a.x, a.y, a.z)))
+
+        def on_diag(msg: DiagnosticArray) -> None:
+            for st in msg.status:
+                if st.name.startswith(self._prefix):
+                    self.diagnostics.clear()
+                    self.diagnostics.update({kv.key: kv.value for kv in st.values})
+                    level = st.level
+                    self.diagnostics['level'] = str(int.from_bytes(level, 'little') if isinstance(level, bytes)
+                                                    else int(level))
+                    self.diagnostics['message'] = st.message
+
+        self.node.create_subscription(Imu, 'imu/data', on_out,
+                                      QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE))
+        self.node.create_subscription(DiagnosticArray, '/diagnostics', on_diag, 10)
+        self._ex = SingleThreadedExecutor(context=self.ctx)
+        self._ex.add_node(self.node)
+        self._spinning = threading.Event()
+        self._spinning.set()
+
+        def spin() -> None:
+            while self._spinning.is_set():
+                self._ex.spin_once(timeout_sec=0.05)
+
+        self._thread = threading.Thread(target=spin, daemon=True)
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        import rclpy
+
+        self._spinning.clear()
+        self._thread.join(timeout=5)
+        self._ex.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.ctx)
+
+    def wait_answered(self, n: int, timeout_s: float, quiet_s: float = 2.0) -> None:
+        """Until ``n`` outputs arrived, or ``timeout_s`` passed, or nothing new for ``quiet_s``; then one more
+        diagnostics period."""
+        deadline = time.time() + timeout_s
+        last_n, quiet_since = -1, time.time()
+        while len(self.received) < n and time.time() < deadline and time.time() - quiet_since < quiet_s:
+            if len(self.received) != last_n:
+                last_n, quiet_since = len(self.received), time.time()
+            time.sleep(0.05)
+        time.sleep(1.2)
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Stamps ``(N,)`` s, orientations ``(N, 4)``, linear accelerations ``(N, 3)`` received."""
+        r = self.received
+        return (np.array([x[0] for x in r], dtype=float), np.array([x[1] for x in r], dtype=float).reshape(-1, 4),
+                np.array([x[2] for x in r], dtype=float).reshape(-1, 3))
+
+
+def stop(proc: subprocess.Popen[str]) -> int | None:
+    """SIGINT a node process and wait for it (kill after 20 s); its exit code, None if it had to be killed."""
+    proc.send_signal(signal.SIGINT)
+    try:
+        return proc.wait(timeout=20)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        return None
+
+
 def run_live(bag: Path, rate: float = 4.0, timeout_s: float = 120.0, node_qos: str = 'reliable') -> LiveResult:
     """Start ``ccf_node``, play ``bag``'s IMU and magnetometer topics into it, record ``imu/data``, stop it.
 
     ``node_qos`` is the node's input reliability: ``reliable`` (nothing lost) or ``best_effort`` (its default).
     The last ``/diagnostics`` values of the node are returned too.
     """
-    import rclpy
-    from diagnostic_msgs.msg import DiagnosticArray
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
-    from sensor_msgs.msg import Imu
-
     isolate_dds()
     types, messages = load_messages(bag, ['/imu/data_raw', '/imu/mag'])
     n_imu = sum(1 for _, topic, _ in messages if topic == '/imu/data_raw')
     proc = subprocess.Popen(
-        node_command() + ['--ros-args', '-p', f'qos_reliability:={node_qos}', '-p',
-                          f'qos_depth:={10000 if node_qos == "reliable" else 50}', '--log-level', 'warn'],
+        [*node_command(), '--ros-args', '-p', f'qos_reliability:={node_qos}', '-p',
+         f'qos_depth:={10000 if node_qos == "reliable" else 50}', '--log-level', 'warn'],
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
     )
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx)
-    node = rclpy.create_node('ccf_demo_recorder', context=ctx)
-    received: list[tuple[float, tuple[float, float, float, float]]] = []
-
-    def on_out(msg: Imu) -> None:
-        s, o = msg.header.stamp, msg.orientation
-        received.append((seconds(s.sec, s.nanosec), from_xyzw(o.x, o.y, o.z, o.w)))
-
-    node.create_subscription(Imu, 'imu/data', on_out, QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE))
-    diagnostics: dict[str, str] = {}
-
-    def on_diag(msg: DiagnosticArray) -> None:
-        for st in msg.status:
-            if st.name.startswith('ccf_node'):
-                diagnostics.clear()
-                diagnostics.update({kv.key: kv.value for kv in st.values})
-                level = st.level
-                diagnostics['level'] = str(int.from_bytes(level, 'little') if isinstance(level, bytes) else int(level))
-                diagnostics['message'] = st.message
-
-    node.create_subscription(DiagnosticArray, '/diagnostics', on_diag, 10)
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(node)
-    spinning = threading.Event()
-    spinning.set()
-
-    def spin() -> None:
-        while spinning.is_set():
-            ex.spin_once(timeout_sec=0.05)
-
-    th = threading.Thread(target=spin, daemon=True)
-    th.start()
     exit_code = None
-    try:
-        deadline = time.time() + 30
-        # Wait until the node is up and both directions are matched, so that nothing is sent into the void.
-        while time.time() < deadline and (node.count_subscribers('imu/data_raw') == 0
-                                          or node.count_publishers('imu/data') == 0):
-            if proc.poll() is not None:
-                detail = (proc.stderr.read() if proc.stderr else '').strip().splitlines()
-                raise CcfError(f'ccf_node exited with code {proc.returncode}' + (f': {detail[-1]}' if detail else ''))
-            time.sleep(0.05)
-        # Both input topics matched (each on its own): a lost first magnetometer sample changes the initial heading.
-        play(node, {'/imu/data_raw': types['/imu/data_raw'], '/imu/mag': types['/imu/mag']}, messages, rate=rate,
-             qos_depth=10000, wait_matched_s=30.0)
-        # Done when every sample is answered, or when nothing more arrives (skipped samples never will).
-        deadline = time.time() + timeout_s
-        last_n, quiet_since = -1, time.time()
-        while len(received) < n_imu and time.time() < deadline and time.time() - quiet_since < 2.0:
-            if len(received) != last_n:
-                last_n, quiet_since = len(received), time.time()
-            time.sleep(0.05)
-        time.sleep(1.2)  # one more diagnostics period
-    finally:
-        proc.send_signal(signal.SIGINT)
+    with Recorder('ccf_demo_recorder', 'ccf_node') as rec:
         try:
-            exit_code = proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-        spinning.clear()
-        th.join(timeout=5)
-        ex.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown(context=ctx)
-    t = np.array([r[0] for r in received], dtype=float)
-    q = np.array([r[1] for r in received], dtype=float).reshape(-1, 4)
-    return LiveResult(t_s=t, quat=q, n_imu_sent=n_imu, exit_code=exit_code, diagnostics=dict(diagnostics))
+            deadline = time.time() + 30
+            # Wait until the node is up and both directions are matched, so that nothing is sent into the void.
+            while time.time() < deadline and (rec.node.count_subscribers('imu/data_raw') == 0
+                                              or rec.node.count_publishers('imu/data') == 0):
+                if proc.poll() is not None:
+                    detail = (proc.stderr.read() if proc.stderr else '').strip().splitlines()
+                    raise CcfError(f'ccf_node exited with code {proc.returncode}'
+                                   + (f': {detail[-1]}' if detail else ''))
+                time.sleep(0.05)
+            # Both input topics matched (each on its own): a lost first magnetometer sample changes the heading.
+            play(rec.node, {'/imu/data_raw': types['/imu/data_raw'], '/imu/mag': types['/imu/mag']}, messages,
+                 rate=rate, qos_depth=10000, wait_matched_s=30.0)
+            # Done when every sample is answered, or when nothing more arrives.
+            rec.wait_answered(n_imu, timeout_s)
+        finally:
+            exit_code = stop(proc)
+    t, q, _ = rec.arrays()
+    return LiveResult(t_s=t, quat=q, n_imu_sent=n_imu, exit_code=exit_code, diagnostics=dict(rec.diagnostics))
