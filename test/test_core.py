@@ -351,3 +351,29 @@ def test_6d_yaw_variance_is_the_relative_drift_not_unknown_north():
     assert sigma_yaw[10] < 0.5  # just initialised: the heading is the reference (relative)
     assert 0.5 < sigma_yaw[-1] < 6.0, sigma_yaw[-1]  # grows with the bias uncertainty; far below 90 deg
     assert np.all(np.diff(sigma_yaw[1:]) >= -1e-12)
+
+
+def test_quaternion_conversions_agree_with_scipy():
+    """Property test on random orientations: every Euler/quaternion conversion and rotation of core/quaternion.py
+    against an independent implementation (scipy's Rotation, intrinsic Z-Y-X = 'ZYX', scalar-last)."""
+    from scipy.spatial.transform import Rotation
+
+    from ccf_ros.core.quaternion import euler_to_quat, quat_of_rpy, quat_to_euler, rpy_of
+
+    rng = np.random.default_rng(12)
+    for _ in range(20):
+        q = rng.standard_normal((64, 4))
+        q /= np.linalg.norm(q, axis=1, keepdims=True)
+        r = Rotation.from_quat(q[:, [1, 2, 3, 0]])
+        ypr = r.as_euler('ZYX')
+        np.testing.assert_allclose(quat_to_euler(q), ypr[:, ::-1], atol=1e-9)
+        np.testing.assert_allclose([rpy_of(tuple(v)) for v in q], ypr[:, ::-1], atol=1e-9)
+        back = np.array([quat_of_rpy(*v) for v in ypr[:, ::-1]])
+        np.testing.assert_allclose(np.abs(np.sum(back * q, axis=1)), 1.0, atol=1e-12)  # same rotation, +-q
+        np.testing.assert_allclose(euler_to_quat(*ypr[:, ::-1].T), back, atol=1e-12)
+        v = rng.standard_normal((64, 3))
+        np.testing.assert_allclose(quat_rotate(q, v), r.apply(v), atol=1e-12)
+        p = rng.standard_normal((64, 4))
+        p /= np.linalg.norm(p, axis=1, keepdims=True)
+        prod = (Rotation.from_quat(p[:, [1, 2, 3, 0]]) * r).as_quat()[:, [3, 0, 1, 2]]
+        np.testing.assert_allclose(np.abs(np.sum(quat_mul(p, q) * prod, axis=1)), 1.0, atol=1e-12)

@@ -24,6 +24,7 @@ import math
 from dataclasses import dataclass
 
 from .base import CommonParams, OrientationFilter, per_axis
+from .quaternion import quat_of_rpy
 
 _PI = math.pi
 _TWO_PI = 2.0 * math.pi
@@ -132,19 +133,6 @@ def acc_mag_euler(
     return roll, pitch, math.atan2(mx_l, my_l)
 
 
-def euler_quat(r: float, p: float, y: float) -> tuple[float, float, float, float]:
-    """Quaternion ``[w, x, y, z]`` of roll ``r``, pitch ``p``, yaw ``y`` (rad, Z-Y-X)."""
-    cr, sr = math.cos(0.5 * r), math.sin(0.5 * r)
-    cp, sp = math.cos(0.5 * p), math.sin(0.5 * p)
-    cy, sy = math.cos(0.5 * y), math.sin(0.5 * y)
-    return (
-        cr * cp * cy + sr * sp * sy,
-        sr * cp * cy - cr * sp * sy,
-        cr * sp * cy + sr * cp * sy,
-        cr * cp * sy - sr * sp * cy,
-    )
-
-
 _FIXED_VARIANCE = ((2.0 * math.pi / 180) ** 2,) * 2 + ((5.0 * math.pi / 180) ** 2,)
 
 
@@ -153,7 +141,7 @@ def wrap_euler(x: list[float]) -> tuple[float, float, float, float]:
     for i in range(3):
         x[i] = (x[i] + _PI) % _TWO_PI - _PI
     x[1] = max(-_HALF_PI, min(_HALF_PI, x[1]))
-    return euler_quat(x[0], x[1], x[2])
+    return quat_of_rpy(x[0], x[1], x[2])
 
 
 class EulerCcf(OrientationFilter):
@@ -187,7 +175,7 @@ class EulerCcf(OrientationFilter):
         self._set_q()
 
     def _set_q(self) -> None:
-        self._q = euler_quat(self._x[0], self._x[1], self._x[2])
+        self._q = quat_of_rpy(self._x[0], self._x[1], self._x[2])
 
     def _step(
         self,
@@ -280,7 +268,7 @@ class Lcf(OrientationFilter):
 
     def _init(self, ax: float, ay: float, az: float, mx: float, my: float, mz: float, mag_ok: bool) -> None:
         self._x = list(acc_mag_euler(ax, ay, az, mx, my, mz, mag_ok, 0.0))
-        self._q = euler_quat(self._x[0], self._x[1], self._x[2])
+        self._q = quat_of_rpy(self._x[0], self._x[1], self._x[2])
 
     def _step(
         self, dt: float, gx: float, gy: float, gz: float, ax: float, ay: float, az: float, acc_n2: float,

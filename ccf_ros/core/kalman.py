@@ -20,7 +20,8 @@ from dataclasses import dataclass
 from operator import mul as _mul
 
 from .base import CommonParams, OrientationFilter, check_range, floats
-from .euler_ccf import acc_mag_euler, euler_quat, wrap_euler
+from .euler_ccf import acc_mag_euler, wrap_euler
+from .quaternion import quat_of_rpy
 
 _PI = math.pi
 _TWO_PI = 2.0 * math.pi
@@ -247,7 +248,7 @@ class Ekf(_EulerKalman):
     def _init(self, ax: float, ay: float, az: float, mx: float, my: float, mz: float, mag_ok: bool) -> None:
         self._x = list(acc_mag_euler(ax, ay, az, mx, my, mz, mag_ok, 0.0))
         self._p = _diagonal(self._noise.p0)
-        self._q = euler_quat(*self._x)
+        self._q = quat_of_rpy(*self._x)
 
     def _step(
         self, dt: float, gx: float, gy: float, gz: float, ax: float, ay: float, az: float, acc_n2: float,
@@ -298,7 +299,7 @@ class Ckf(_EulerKalman):
                 for j in range(6):
                     self._p[i][j] = self._p[j][i] = 0.0
                 self._p[i][i] = p0[i]
-        self._q = euler_quat(*self._x)
+        self._q = quat_of_rpy(*self._x)
 
     def _step(
         self, dt: float, gx: float, gy: float, gz: float, ax: float, ay: float, az: float, acc_n2: float,

@@ -320,3 +320,16 @@ def rpy_of(q: Quat) -> tuple[float, float, float]:
         math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x)))),
         math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)),
     )
+
+
+def quat_of_rpy(roll: float, pitch: float, yaw: float) -> Quat:
+    """``(w, x, y, z)`` of roll, pitch, yaw (rad, intrinsic Z-Y-X as :func:`euler_to_quat`), on plain floats."""
+    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
+    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
+    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
+    return (
+        cr * cp * cy + sr * sp * sy,
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+    )

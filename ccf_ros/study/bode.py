@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from ..core.ccf import GRAVITY_M_S2, CcfParams, tilt_transfer
+from ..core.quaternion import rpy_of
 from ..core.registry import make_filter
 from .experiments import PAPER_ALPHA, euler_ccf_settings, ncf_settings
 from .labels import EULER
@@ -62,8 +63,7 @@ def measure(
     update = filt.update
     for k in range(n):
         update(float(t[k]), zero, acc_l[k], None)
-        w, x, y, z = filt.quaternion
-        out[k] = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+        out[k] = rpy_of(filt.quaternion)[0]
     sel = t >= t[-1] - fit_s
     ts = t[sel]
     basis = np.stack((np.sin(2 * np.pi * f_hz * ts), np.cos(2 * np.pi * f_hz * ts), np.ones_like(ts), ts - ts[0]), 1)
