@@ -133,7 +133,8 @@ def _li_griffiths(x: np.ndarray) -> np.ndarray:
     C1 = np.zeros((6, 6))
     C1[:3, :3] = k / 2 - 1
     np.fill_diagonal(C1[:3, :3], -1.0)
-    C1[3:, 3:] = -k / 4 * np.eye(3)
+    # kJ - I^2 with J = ab + bc + ca - f^2 - g^2 - h^2 (f, g, h: half the cross-term coefficients, as in D).
+    C1[3:, 3:] = -k * np.eye(3)
     try:
         S22_inv_S21 = np.linalg.solve(S22, S12.T)
         w, V = np.linalg.eig(np.linalg.solve(C1, S11 - S12 @ S22_inv_S21))
