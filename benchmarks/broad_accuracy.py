@@ -3,6 +3,9 @@
 Usage: python benchmarks/broad_accuracy.py [--shared ../shared/data/broad] [--rates 1,3,6] [--no-6d] [NAME=VALUE ...]
 Prints per-trial total/heading/inclination RMSE (deg) and the mean, beside the VQF columns of
 shared/data/broad/README.md; and the 6-D run (no magnetometer) scored with one heading offset fitted per trial.
+Lower rates are made two ways: every n-th sample (point samples, the usual benchmark) and the mean of each n samples
+(what a sensor running at the lower output rate reports: its decimation filter averages); the means are printed as a
+last line per rate.
 """
 
 from __future__ import annotations
@@ -29,19 +32,34 @@ VQF = {
 }
 
 
+def _decimated(imu, step: int, *, mean: bool) -> tuple[np.ndarray, ...]:
+    """(t_s, gyr, acc, mag) at 1/step of the rate: every step-th sample, or (mean) the mean of each step samples
+    stamped at the last of them."""
+    if not mean:
+        sl = slice(None, None, step)
+        return imu.t_s[sl], imu.gyr[sl], imu.acc[sl], imu.mag[sl]
+    n = len(imu.t_s) // step * step
+
+    def box(x: np.ndarray) -> np.ndarray:
+        return x[:n].reshape(-1, step, 3).mean(axis=1)
+
+    return imu.t_s[step - 1:n:step], box(imu.gyr), box(imu.acc), box(imu.mag)
+
+
 def run_trial(args: tuple[Path, list[int], dict[str, str], bool]) -> tuple[str, dict[str, tuple[float, ...]]]:
     trial, steps, settings, six_d = args
     imu = read_imu_arrays(trial)
     t_ref, q_ref = read_orientations(trial, '/ground_truth/pose')
     mask = mask_at(t_ref, *read_bools(trial, '/ground_truth/moving'))
     out: dict[str, tuple[float, ...]] = {}
-    runs = [(str(step), step, True) for step in steps] + ([('6d', 1, False)] if six_d else [])
+    runs = [(str(step), step, True) for step in steps] + [(f'{step}m', step, True) for step in steps if step > 1]
+    runs += [('6d', 1, False)] if six_d else []
     for key, step, use_mag in runs:
-        sl = slice(None, None, step)
+        t, gyr, acc, mag = _decimated(imu, step, mean=key.endswith('m'))
         filt, _ = build({**settings, 'use_mag': use_mag} if not use_mag else settings)
-        r = run_batch(filt, imu.t_s[sl], imu.gyr[sl], imu.acc[sl], imu.mag[sl] if use_mag else None)
+        r = run_batch(filt, t, gyr, acc, mag if use_mag else None)
         # Scored at every reference sample, estimate interpolated (decimated runs) as `ccf eval` does.
-        q = align(imu.t_s[sl][r.answered], r.quat[r.answered], t_ref, q_ref)
+        q = align(t[r.answered], r.quat[r.answered], t_ref, q_ref)
         s = summarize(q, q_ref, mask)
         nan_out = int((~np.isfinite(r.quat).all(axis=1)).sum())
         fitted = float('nan')
@@ -80,11 +98,15 @@ def main() -> None:
         vq = np.mean([VQF[n[:2]] for n in results if n[:2] in VQF], axis=0) if step == 1 else None
         ref = f'{vq[0]:5.2f} {vq[1]:5.2f} {vq[2]:5.2f}' if vq is not None else ''
         print(f'{"mean":45s} {means[0]:7.2f} {means[1]:7.2f} {means[2]:7.2f}   {ref:>17s}')
+        if step > 1:
+            mm = np.mean([res[f'{step}m'][:3] for res in results.values()], axis=0)
+            print(f'{"mean, averaged samples":45s} {mm[0]:7.2f} {mm[1]:7.2f} {mm[2]:7.2f}')
     if 1 in steps:
         base = np.mean([r['1'][0] for r in results.values()])
         for step in steps[1:]:
             m = np.mean([r[str(step)][0] for r in results.values()])
-            print(f'rate ratio {286 / step:.0f} Hz / 286 Hz: {m / base:.3f}')
+            mm = np.mean([r[f'{step}m'][0] for r in results.values()])
+            print(f'rate ratio {286 / step:.0f} Hz / 286 Hz: {m / base:.3f} (averaged samples {mm / base:.3f})')
     if not a.no_6d:
         print('\n== 6-D (no magnetometer), 286 Hz: total with one heading offset fitted per trial, inclination')
         for name, res in results.items():

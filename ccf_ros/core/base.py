@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from enum import IntEnum
 from typing import NamedTuple
 
-from .quaternion import WORLD_FRAMES
+from .quaternion import WORLD_FRAMES, quat_mul_scalar
 
 
 class Status(IntEnum):
@@ -300,14 +300,7 @@ class OrientationFilter(ABC):
         """Body->world orientation ``(w, x, y, z)`` in ``params.world_frame``."""
         if self._identity_frame:
             return self._q
-        pw, px, py, pz = self._frame
-        qw, qx, qy, qz = self._q
-        return (
-            pw * qw - px * qx - py * qy - pz * qz,
-            pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw,
-        )
+        return quat_mul_scalar(self._frame, self._q)
 
     @property
     def flags(self) -> FilterFlags:

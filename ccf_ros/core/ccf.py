@@ -10,11 +10,15 @@ accelerometer/magnetometer attitude — made to work in 3-D, at any sample rate,
    is constant in that frame, so it passes unattenuated and without lag, while linear accelerations — whose
    integral is a bounded velocity change — average out. (The idea is VQF's, Laidig & Seel 2023; the code is ours.)
    ``g_lp`` is "the accelerometer attitude" both stages see.
-1. **NCF (bias stage).** Its own attitude ``exp(dn) ⊗ q`` (``dn``: small horizontal world-frame rotation from the LCF
-   attitude: the NCF corrects tilt only) is integrated from the same bias-corrected gyro and corrected towards ``g_lp`` with a proportional gain
-   ``1/tau_ncf_s``; the integral of its error, gain ``1/(tau_ncf_s * tau_bias_s)``, is the gyro-bias estimate. With
-   ``tau_bias_s >= 4 tau_ncf_s`` the bias loop is (over)damped and a bias converges with a time constant of about
-   ``tau_bias_s`` while moving. At rest the bias is instead pulled to the low-passed gyro (much more informative).
+1. **NCF (bias stage).** Its own attitude ``exp(dn) ⊗ q`` (``dn``: a small world-frame rotation from the LCF
+   attitude, tilt and heading) is integrated from the same bias-corrected gyro and corrected towards ``g_lp`` and the
+   magnetometer heading with a proportional gain ``1/tau_ncf_s``; the integral of its error, gain
+   ``u/(tau_ncf_s * tau_bias_s)``, is the gyro-bias estimate. ``u`` is the bias variance relative to
+   ``bias_sigma_init_rad_s²`` (Kalman-like: 1 while nothing is known, small after a rest, growing back with
+   ``bias_walk_rad_s_sqrt_s``). With ``tau_bias_s >= 4 tau_ncf_s`` the bias loop is (over)damped and, at ``u = 1``, a
+   bias converges with a time constant of about ``tau_bias_s`` while moving. ``tau_ncf_s`` must be shorter than the
+   time the body takes to turn, or the integral sees an error that the rotation has turned away. At rest the bias is
+   instead pulled to the low-passed gyro (much more informative).
 2. **LCF (output stage).** The published attitude ``q`` integrates the bias-corrected rate and is blended towards
    ``g_lp`` (inclination, time constant ``tau_acc_s``) and towards the magnetometer heading (rotation about world
    up only, ``tau_mag_s``), so a magnetic disturbance never tilts the estimate. A field whose norm or dip departs from
@@ -32,9 +36,11 @@ Without the NCF (``K_i = 0``) ``H_a = k_f K_a / ((s + k_f)(s + K_a))``: linear a
 12 dB/octave, twice the rate of a single blend. The per-sample gains ``1 - exp(-dt/tau)`` make the defaults behave
 the same at 40 Hz and at 1 kHz.
 
-The gyro step uses the rectangle rule (rate of the current sample over the last interval), which puts the integrated
-frame half a step ahead of the sample instant; the accelerometer sample is rotated back by that half step before it
-is blended (a first-order correction that matters at low rates and fast rotation).
+Sample timing. The gyro step uses the rectangle rule: a sample's rate is taken as the mean over the interval before
+it (what a MEMS gyro's decimation filter outputs), which carries the frame exactly to the step's end. The
+accelerometer sample is the same kind of mean, so it describes gravity in the frame of mid-interval: it is rotated
+forward by half the gyro step before it is blended (first order; it matters at low rates and fast rotation). With
+instantaneous (point) samples the estimate is therefore the frame half a step after the stamp.
 
 Reported covariance: continuous-time, so it does not depend on the sample rate. Inclination and heading variances
 are a floor (``incl_sigma_rad``, ``heading_sigma_rad``) plus a drift variance that grows while that correction is
@@ -70,9 +76,10 @@ class CcfParams(CommonParams):
         tau_mag_s: LCF: time constant of the heading blend towards the magnetometer, s. Default 9.0.
         tau_acc_lp_s: time constant of the accelerometer low-pass in the gyro-carried (almost inertial) frame, s.
             Together with ``tau_acc_s`` it attenuates linear accelerations at 12 dB/octave. Default 2.5.
-        tau_ncf_s: NCF: time constant of its proportional correction, s. Default 10.
-        tau_bias_s: NCF: integral time constant, s (gain ``1/(tau_ncf_s tau_bias_s)``); a constant bias is learnt
-            while moving with a time constant of about this (critically damped at ``4 tau_ncf_s``). Default 40.
+        tau_ncf_s: NCF: time constant of its proportional correction, s; shorter than the body takes to turn.
+            Default 3.
+        tau_bias_s: NCF: integral time constant, s (gain ``u/(tau_ncf_s tau_bias_s)``); a constant bias is learnt
+            while moving with a time constant of about this (critically damped at ``4 tau_ncf_s``). Default 30.
         motion_bias: learn the bias while moving (the NCF integral). Default True.
         rest_bias: learn the bias from the gyro directly while the IMU rests. Default True.
         rest_gyro_rad_s: rest when the gyro stays within this of its low-passed value, rad/s. Default 2°/s.
@@ -223,7 +230,7 @@ class QuaternionCcf(OrientationFilter):
     """NCF -> LCF cascade on unit quaternions; see the module docstring.
 
     State (all reset by :meth:`reset`): LCF orientation ``q``, gyro bias (rad/s, body), filtered gravity ``g_lp``
-    (m/s², body), NCF attitude offset ``dn`` (rad, horizontal world frame), rest-detector low-pass and timer, magnetometer reference,
+    (m/s², body), NCF attitude offset ``dn`` (rad, world frame), rest-detector low-pass and timer, magnetometer reference,
     drift variances (rad²) and bias uncertainty (rad/s).
     """
 
@@ -289,6 +296,9 @@ class QuaternionCcf(OrientationFilter):
 
     def _params_changed(self) -> None:
         self._coef = _Coefficients.of(self.params, 0.0)
+        if not self.params.rest_bias:
+            self.at_rest = False
+            self._rest_s = 0.0
         if self._mag_have_ref:
             self._mag_bounds = self._bounds(*self._mag_ref)
             self._mag_candidate = self._mag_bounds
@@ -317,6 +327,7 @@ class QuaternionCcf(OrientationFilter):
         self._dn = (0.0, 0.0, 0.0)
         self._gyro_lp = self._bias
         self._rest_s = 0.0
+        self.at_rest = False
         self._var_incl = 0.0
         # Start-up: the blends begin as running means (gain 1/n) and hand over to their time constants once 1/n
         # falls below them, so the first seconds average the samples instead of trusting the first one.
@@ -375,8 +386,8 @@ class QuaternionCcf(OrientationFilter):
         cx = k_acc * ex
         cy = k_acc * ey
         cz = k_acc * ez
-        # NCF tilt error: its attitude is exp(dn) ⊗ q (dn: horizontal world-frame rotation), so its error is e minus
-        # dn seen in the body frame.
+        # NCF tilt error: its attitude is exp(dn) ⊗ q (dn: a small world-frame rotation), so its tilt error is e
+        # minus the horizontal part of dn seen in the body frame.
         nx = ex - dnx * r0x - dny * r1x
         ny = ey - dnx * r0y - dny * r1y
         nz = ez - dnx * r0z - dny * r1z
@@ -388,9 +399,9 @@ class QuaternionCcf(OrientationFilter):
             if (lo2 <= mag_n2 <= hi2 and lo_dip <= sin_dip <= hi_dip) or self._mag_rejected(
                 dt, mag_n2, norm, sin_dip
             ):
-                if self._mag_disturbed_s:
-                    self._mag_disturbed_s = 0.0
+                if self.mag_disturbed:
                     self.mag_disturbed = False
+                    self._mag_disturbed_s = 0.0
                 # Horizontal field in the world frame must point to +y (north in ENU). The correction is a rotation
                 # about world up (v in body coordinates): heading only, never tilt.
                 d = atan2(r0x * mx + r0y * my + r0z * mz, r1x * mx + r1y * my + r1z * mz)
@@ -453,7 +464,9 @@ class QuaternionCcf(OrientationFilter):
                 gly += k * dgy
                 glz += k * dgz
                 self._gyro_lp = (glx, gly, glz)
-                if dgx * dgx + dgy * dgy + dgz * dgz < c.rest_gyro2 and glx * glx + gly * gly + glz * glz < c.bias_max2:
+                m = c.bias_max
+                # The low-passed gyro must be a believable bias: within the clamp, per axis as the clamp is.
+                if dgx * dgx + dgy * dgy + dgz * dgz < c.rest_gyro2 and -m < glx < m and -m < gly < m and -m < glz < m:
                     # 1e-12 s keeps the timer non-zero (the low-pass continues) from the first sample on.
                     self._rest_s += dt + 1e-12
                     if self._rest_s >= c.rest_min_s:
@@ -518,14 +531,15 @@ class QuaternionCcf(OrientationFilter):
         fy = gy2 + (cz * gx2 - cx * gz2)
         fz = gz2 + (cx * gy2 - cy * gx2)
         if acc_n2:
-            # The sample is taken at the step's end, the rectangle rule's frame half a step ahead: rotate it back
-            # by half the gyro step, then blend.
+            # The sample is a mean over the step (gravity in the frame of mid-interval): carry it the half step to
+            # the step's end, v' = v - (r/2) x v, then blend.
             k = k_lp
             fx += k * (ax - 0.5 * (ry * az - rz * ay) - fx)
             fy += k * (ay - 0.5 * (rz * ax - rx * az) - fy)
             fz += k * (az - 0.5 * (rx * ay - ry * ax) - fz)
         self._g_lp = (fx, fy, fz)
-        # NCF offset (world frame, unchanged by the common gyro step): dn += R (c_ncf - c_lcf), horizontal part.
+        # NCF offset (world frame, unchanged by the common gyro step): dn += R (c_ncf - c_lcf); its vertical part is
+        # the NCF's own heading (moved by the magnetometer only).
         k = c.k_ncf
         ux = k * nx - cx
         uy = k * ny - cy

@@ -307,8 +307,9 @@ def relevel(q: Quat, ax: float, ay: float, az: float) -> Quat:
 
 
 def level_quat(ax: float, ay: float, az: float) -> Quat:
-    """Body->ENU orientation of a specific force ``a`` (any norm > 0) with heading zero (body x towards east
-    where possible): the first-sample initialisation without a usable magnetometer."""
+    """Body->ENU orientation of a specific force ``a`` (any norm > 0): the smallest rotation from the identity that
+    levels it (no turn about the vertical; the heading is arbitrary), the first-sample initialisation without a
+    usable magnetometer."""
     return relevel((1.0, 0.0, 0.0, 0.0), ax, ay, az)
 
 
@@ -332,4 +333,17 @@ def quat_of_rpy(roll: float, pitch: float, yaw: float) -> Quat:
         sr * cp * cy - cr * sp * sy,
         cr * sp * cy + sr * cp * sy,
         cr * cp * sy - sr * sp * cy,
+    )
+
+
+def quat_mul_scalar(p: Quat, q: Quat) -> Quat:
+    """Hamilton product ``p ⊗ q`` of two ``(w, x, y, z)`` on plain floats (e.g. ENU -> another world frame:
+    ``quat_mul_scalar(WORLD_FRAMES[frame], q)``)."""
+    pw, px, py, pz = p
+    qw, qx, qy, qz = q
+    return (
+        pw * qw - px * qx - py * qy - pz * qz,
+        pw * qx + px * qw + py * qz - pz * qy,
+        pw * qy - px * qz + py * qw + pz * qx,
+        pw * qz + px * qy - py * qx + pz * qw,
     )
