@@ -13,9 +13,9 @@ import math
 from typing import NamedTuple
 
 from .core.base import ANSWERED_BELOW, OrientationFilter, Status
-from .core.ccf import GRAVITY_M_S2
+from .core.ccf import GRAVITY_M_S2, CcfParams
 from .core.pairing import MagPairer
-from .core.quaternion import WORLD_FRAMES, level_quat, quat_from_acc_mag_scalar, relevel, to_xyzw
+from .core.quaternion import WORLD_FRAMES, level_quat, quat_from_acc_mag_scalar, quat_mul_scalar, relevel, to_xyzw
 from .settings import AdapterSettings
 
 #: A stamp this much (s) before the latest one is a clock jump, not a late sample: the filter restarts.
@@ -68,6 +68,8 @@ class ImuEngine:
         self._no_mag_before = 0
         self._nonfinite_before = 0
         self._stateless_q: tuple[float, float, float, float] | None = None
+        #: the held stateless orientation's heading came from a magnetometer sample
+        self._stateless_heading = False
         self.set_settings(self.settings)
 
     def set_settings(self, settings: AdapterSettings) -> None:
@@ -81,24 +83,41 @@ class ImuEngine:
         identity = s == (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
         self._mag_cal = None if (bx == by == bz == 0.0 and identity) else (bx, by, bz, *s)
         turn = settings.yaw_turn_rad
-        # q_out = Rz(turn) ⊗ q: a rotation about world up, applied in one place (to_output).
+        # q_out = Rz(turn) ⊗ q: a rotation about the output world frame's z (up in ENU/NWU, down in NED), as
+        # imu_tools turns its output; applied in one place (_output).
         self._turn = None if turn == 0.0 else (math.cos(0.5 * turn), math.sin(0.5 * turn))
         self._remove_g = settings.remove_gravity_vector
         self._stateless = settings.stateless
         self._corrected_rate = settings.bias_corrected_rate
 
-    def reset(self) -> None:
-        """Fresh filter state (parameters kept); counters keep counting. Magnetometer samples stay paired."""
+    def _bank_counts(self) -> None:
+        """Add the filter's counters to the engine's totals (before the filter's are reset or it is replaced)."""
         f = self.filter
         self._counts_before = [a + b for a, b in zip(self._counts_before, f.counts, strict=True)]
         self._no_acc_before += f.n_no_acc
         self._no_mag_before += f.n_no_mag
         self._nonfinite_before += f.n_nonfinite_resets
+
+    def replace_filter(self, filt: OrientationFilter) -> None:
+        """Run ``filt`` from the next sample on (a fresh estimate); the counters keep counting."""
+        self._bank_counts()
+        self.filter = filt
+        self._n_far_back = 0
+        self._t_const = 0.0
+        self._t_last = -math.inf
+        self._stateless_q = None
+        self._stateless_heading = False
+
+    def reset(self) -> None:
+        """Fresh filter state (parameters kept); counters keep counting. Magnetometer samples stay paired."""
+        f = self.filter
+        self._bank_counts()
         self._n_far_back = 0
         f.reset()
         self._t_const = 0.0
         self._t_last = -math.inf
         self._stateless_q = None
+        self._stateless_heading = False
 
     def on_mag(self, t_s: float, field: Vec3) -> None:
         """A magnetometer message: stamp (s), field (any unit, body frame), calibrated here before anything else."""
@@ -125,7 +144,7 @@ class ImuEngine:
             self._n_far_back += 1
             if self._n_far_back >= JUMP_BACK_SAMPLES:
                 self.reset()
-                self.pairer.restart(t_s)
+                self.pairer.restart(t_s, JUMP_BACK_RESET_S)
                 self.n_resets_jump += 1
         else:
             self._n_far_back = 0
@@ -146,11 +165,15 @@ class ImuEngine:
             self.n_answered_stale += 1
         return self._output(f.quaternion, status, gyr, acc)
 
-    def _output(self, q: tuple[float, float, float, float], status: int, gyr: Vec3, acc: Vec3) -> Output:
-        """Shape the orientation ``q`` ([w, x, y, z], world frame) and the sample into an :class:`Output`."""
+    def _output(
+        self, q: tuple[float, float, float, float], status: int, gyr: Vec3, acc: Vec3,
+        variance: Vec3 | None = None,
+    ) -> Output:
+        """Shape the orientation ``q`` ([w, x, y, z], world frame) and the sample into an :class:`Output`; the
+        covariance is ``orientation_stddev`` if set, else ``variance`` if given, else the filter's."""
         f = self.filter
         sd = self._stddev
-        vr, vp, vy = (sd * sd,) * 3 if sd > 0.0 else f.orientation_variance
+        vr, vp, vy = (sd * sd,) * 3 if sd > 0.0 else variance or f.orientation_variance
         bias = f.gyro_bias
         rate = None
         if self._corrected_rate:
@@ -173,35 +196,38 @@ class ImuEngine:
         self.n_out += 1
         return Output(to_xyzw(q), (vr, 0.0, 0.0, 0.0, vp, 0.0, 0.0, 0.0, vy), bias, status, rate, lin)
 
-    def _stateless_output(
-        self, t_s: float, gyr: Vec3, acc: Vec3, mag: Vec3 | None
-    ) -> Output | None:
-        """imu_tools' ``stateless``: the orientation of this sample's accelerometer (+ magnetometer) alone."""
-        ax, ay, az = acc
-        n2 = ax * ax + ay * ay + az * az
-        status = int(Status.UPDATED)
-        if n2 > 1e-12 and n2 - n2 == 0.0:
-            q = None
-            if mag is not None and self.filter.params.use_mag:
-                q = quat_from_acc_mag_scalar(ax, ay, az, mag[0], mag[1], mag[2], True)
-            if q is None:
-                q = relevel(self._stateless_q, ax, ay, az) if self._stateless_q is not None else level_quat(ax, ay, az)
-            self._stateless_q = q
-        elif self._stateless_q is None:
+    def _stateless_output(self, t_s: float, gyr: Vec3, acc: Vec3, mag: Vec3 | None) -> Output | None:
+        """imu_tools' ``stateless``: the orientation of this sample's accelerometer (+ magnetometer) alone. The filter
+        still runs, so its flags, bias and counts stay meaningful; the covariance is the accelerometer's and
+        magnetometer's floors (a heading never taken from a magnetometer: (π/2)²)."""
+        f = self.filter
+        status = f.update(t_s, gyr, acc, mag)
+        if not f.initialized:
             return None
-        else:
-            status = int(Status.SKIPPED_NO_ACC_YET)
+        flags = f.flags
+        if flags.acc_used:
+            q = quat_from_acc_mag_scalar(*acc, *mag, True) if mag is not None and flags.mag_used else None
+            if q is not None:
+                self._stateless_heading = True
+            elif self._stateless_q is not None:
+                q = relevel(self._stateless_q, *acc)  # keeps the heading it had
+            else:
+                q = level_quat(*acc)
+                self._stateless_heading = False
+            self._stateless_q = q
+        if status >= ANSWERED_BELOW or self._stateless_q is None or not flags.acc_used:
             self.n_answered_stale += 1
-        pw, px, py, pz = WORLD_FRAMES[self.filter.params.world_frame]
-        qw, qx, qy, qz = self._stateless_q
-        # Internal ENU -> the configured world frame, as OrientationFilter.quaternion does.
-        q_world = (
-            pw * qw - px * qx - py * qy - pz * qz,
-            pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw,
+        if self._stateless_q is None:
+            return None
+        p = f.params
+        # The floors of the CCF's covariance model (the baselines have none of their own).
+        vi = getattr(p, 'incl_sigma_rad', CcfParams.incl_sigma_rad) ** 2
+        vh = (
+            getattr(p, 'heading_sigma_rad', CcfParams.heading_sigma_rad) ** 2
+            if self._stateless_heading else (0.5 * math.pi) ** 2
         )
-        return self._output(q_world, status, gyr, acc)
+        q_world = quat_mul_scalar(WORLD_FRAMES[p.world_frame], self._stateless_q)
+        return self._output(q_world, status, gyr, acc, (vi, vi, vh))
 
     def counts(self) -> list[int]:
         """Samples per :class:`~ccf_ros.core.base.Status` since this engine was made."""

@@ -1,5 +1,7 @@
 """IMU/magnetometer delivery order for the node: when to hold an IMU sample for its magnetometer sample. No ROS import.
 
+from .engine import JUMP_BACK_RESET_S
+
 DDS does not order delivery across topics. When the magnetometer carries the IMU's stamps (lock-step: a 9-axis
 driver publishing both from one reading), an IMU sample can arrive before the magnetometer sample with the same
 stamp; processed at once it would pair with the previous magnetometer sample, not as ``ccf replay`` pairs it (bag
@@ -31,6 +33,8 @@ import math
 from collections import deque
 from collections.abc import Sequence
 from typing import Generic, NamedTuple, TypeVar
+
+from .engine import JUMP_BACK_RESET_S
 
 #: Longest time (s) an IMU sample waits for its magnetometer sample.
 HOLD_S = 0.02
@@ -124,10 +128,23 @@ class ImuMagSync(Generic[T]):
         self._streak = 0
 
     # --- per sample -----------------------------------------------------------------------------------------
+    def _jumped_back(self, t: float) -> bool:
+        """``t`` is far behind the magnetometer's latest stamp: the clock jumped back (bag loop, simulation reset)."""
+        return t < self._mag_t - JUMP_BACK_RESET_S
+
+    def _new_timeline(self) -> None:
+        """Forget the stamps of the old timeline (held samples stay, in order, until released or expired)."""
+        held = self._held
+        self._held = deque()
+        self.reset()
+        self._held = held
+
     def on_imu(self, t: float, item: T, now: float) -> bool:
         """An IMU sample with stamp ``t`` arrived at ``now``. True: process ``item`` now; False: it is held."""
         if not self.enabled:
             return True
+        if self._jumped_back(t):
+            self._new_timeline()
         if t == self._mag_t or t in self._mag_recent:
             self._matched()  # its magnetometer sample came first
         elif t < self._mag_t:
@@ -147,6 +164,11 @@ class ImuMagSync(Generic[T]):
 
     def on_mag(self, t: float, now: float) -> Sequence[T]:
         """A magnetometer sample with stamp ``t`` arrived at ``now``: the held samples it releases, in order."""
+        released: list[T] = []
+        if self._jumped_back(t):
+            # The old timeline's held samples will not get theirs: process them now, then start over.
+            released = self.flush(now)
+            self.reset()
         self._mag_recent.append(t)
         if t > self._mag_t:
             self._mag_t = t
@@ -162,10 +184,10 @@ class ImuMagSync(Generic[T]):
             self._undecided = self._streak < self.lockstep_after
         held = self._held
         if not held:
-            return _NOTHING
+            return released or _NOTHING
         if not self._undecided and self._streak < self.lockstep_after:
-            return self.flush(now)  # not (or no longer) in lock-step: nothing to wait for
-        out = []
+            return released + self.flush(now)  # not (or no longer) in lock-step: nothing to wait for
+        out = released
         while held and held[0][0] <= t:
             out.append(self._release(now))
         return out

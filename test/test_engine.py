@@ -87,6 +87,37 @@ def test_bias_corrected_rate_and_stateless_orientation(sim):
     np.testing.assert_allclose(up, sim.acc / np.linalg.norm(sim.acc, axis=1, keepdims=True), atol=1e-9)
 
 
+@pytest.mark.parametrize('use_mag', [True, False])
+def test_stateless_reports_the_floors_and_keeps_the_filter_running(sim, use_mag):
+    from ccf_ros.core import CcfParams
+
+    filt, adapter = build({'stateless': True, 'use_mag': use_mag})
+    eng = ImuEngine(filt, adapter)
+    outs = run(eng, sim.t_s, sim.gyr, sim.acc, sim.mag)
+    assert all(o is not None for o in outs) and eng.answered() == len(outs)
+    var = np.array([o.covariance[::4] for o in outs])
+    incl = CcfParams.incl_sigma_rad ** 2
+    head = CcfParams.heading_sigma_rad ** 2 if use_mag else (math.pi / 2) ** 2
+    np.testing.assert_allclose(var, np.tile([incl, incl, head], (len(outs), 1)), rtol=1e-12)
+    # The filter behind it ran: its bias and flags are the filter's (the simulation's bias is learnt).
+    assert filt.initialized and np.linalg.norm(outs[-1].bias) > 0.0
+    np.testing.assert_allclose(outs[-1].bias, sim.bias[-1], atol=math.radians(0.1))  # measured 0.083°/s
+
+
+def test_replacing_the_filter_restarts_the_estimate_but_counts_on(sim):
+    eng = ImuEngine(make_filter())
+    run(eng, sim.t_s[:300], sim.gyr[:300], sim.acc[:300], sim.mag[:300])
+    eng.on_imu(float(sim.t_s[299]), tuple(sim.gyr[299]), tuple(sim.acc[299]))  # a repeated stamp: skipped
+    before = eng.counts()
+    new = make_filter({'filter': 'madgwick'})
+    eng.replace_filter(new)
+    assert eng.filter is new and not new.initialized
+    outs = run(eng, sim.t_s[300:400], sim.gyr[300:400], sim.acc[300:400], sim.mag[300:400])
+    assert all(o is not None for o in outs) and new.initialized
+    assert sum(eng.counts()) == sum(before) + 100 and eng.skipped_by_reason() == {'skipped_stamp': 1}
+    assert eng.answered() == 401
+
+
 def test_every_message_is_answered_even_a_repeated_or_backward_stamp(sim):
     eng = ImuEngine(make_filter())
     t, g, a, m = sim.t_s[:400], sim.gyr[:400], sim.acc[:400], sim.mag[:400]

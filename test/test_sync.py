@@ -306,6 +306,28 @@ def test_first_imu_sample_waits_for_the_first_magnetometer_sample():
     assert max(r2.held_on_arrival) < HOLD_S / P + 2
 
 
+@pytest.mark.parametrize('imu_first_after_jump', [False, True])
+def test_a_clock_jump_back_starts_the_sync_over_and_pairs_the_new_timeline(imu_first_after_jump):
+    """A bag loop: lock-step, then the stamps start again from the beginning; IMU samples that overtake their
+    magnetometer sample on the new timeline are still held for it (was: processed at once, lock-step lost)."""
+    r = Run()
+    for k in range(3000):  # 3 s in lock-step, magnetometer first
+        r.mag(k)
+        r.imu(k)
+        r.tick()
+    assert r.sync.lockstep
+    n_before = len(r.done)
+    first = [('imu', 0), ('mag', 0)] if imu_first_after_jump else [('mag', 0), ('imu', 0)]
+    order = first + [item for k in range(1, 40) for item in (('imu', k), ('mag', k))]
+    for topic, k in order:
+        r.imu(k) if topic == 'imu' else r.mag(k)
+        r.now += P / 4
+    assert r.done[n_before:] == list(range(40))  # in order, each after its magnetometer sample
+    after = [k for k in r.held_on_arrival if k < 40]
+    assert after == list(range(1 if not imu_first_after_jump else 0, 40))  # the new timeline's IMU-first samples
+    assert r.sync.lockstep and r.sync.stats().n_timeouts == 0
+
+
 def test_disabled_never_holds():
     r = Run(enabled=False)
     for k in range(10):

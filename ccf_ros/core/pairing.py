@@ -33,11 +33,11 @@ class MagPairer:
         self._field_in_use: tuple[float, float, float] | None = None
         self._pending: deque[tuple[float, tuple[float, float, float]]] = deque(maxlen=256)
 
-    def restart(self, t_s: float) -> None:
-        """The clock jumped back to ``t_s`` (bag loop, simulation reset): forget the sample in use and every pending
-        one from the old timeline, keep the pending samples that belong to the new one (stamps up to ``t_s`` plus
-        the tolerance and not older than the timeout), so the restart initialises with the magnetometer."""
-        keep = [(tm, m) for tm, m in self._pending if t_s - self.timeout_s <= tm <= t_s + self.tolerance_s]
+    def restart(self, t_s: float, horizon_s: float) -> None:
+        """The clock jumped back to ``t_s`` (bag loop, simulation reset): forget the sample in use and the pending
+        ones of the old timeline, keep those of the new one (stamps from ``t_s - timeout_s`` to ``t_s + horizon_s``,
+        s), so the restart initialises with the magnetometer and later samples still pair."""
+        keep = [(tm, m) for tm, m in self._pending if t_s - self.timeout_s <= tm <= t_s + horizon_s]
         self._t_in_use = -math.inf
         self._field_in_use = None
         self._pending.clear()
