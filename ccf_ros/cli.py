@@ -61,9 +61,11 @@ def _engine(args: argparse.Namespace) -> Any:
     from .settings import build
 
     from_files, given = _settings(args)
-    merged = {**from_files, **given}
+    # The executable's defaults (e.g. complementary_filter_node: NWU, bias-corrected rate), then files, then --param.
+    profile = PROFILES[getattr(args, 'profile', None) or 'ccf_node']
+    merged = {**profile.defaults, **from_files, **given}
     # imu_tools' do_bias_estimation means the same offline as in the node.
-    apply_do_bias_estimation(merged, PROFILES['ccf_node'])
+    apply_do_bias_estimation(merged, profile)
     if from_files:
         # A parameters file holds the parameters of every filter; only the names given on the command line must
         # apply to the selected one.
@@ -120,9 +122,13 @@ def cmd_eval(args: argparse.Namespace) -> int:
     print(format_summary(s, args.estimate_topic))
     if json_path:
         text = json.dumps(s.as_dict(), indent=2)
+        tmp = json_path.with_name(f'.{json_path.name}.partial')
         try:
-            json_path.write_text(text)
+            # Written beside and renamed: an interrupted run never leaves a truncated file under the real name.
+            tmp.write_text(text)
+            tmp.replace(json_path)
         except OSError as err:
+            tmp.unlink(missing_ok=True)
             raise CcfError(f'cannot write JSON {json_path}: {err.strerror}') from err
     if plot_path:
         from .offline.plot import plot_rpy
@@ -326,6 +332,9 @@ def build_parser() -> argparse.ArgumentParser:
                    'repeatable, a later file overrides an earlier one')
     r.add_argument('--param', action='append', metavar='NAME=VALUE',
                    help='set one parameter, over the parameters files (repeatable; list: ccf params)')
+    r.add_argument('--profile', choices=('ccf_node', 'imu_filter_madgwick_node', 'complementary_filter_node'),
+                   default='ccf_node', help="start from this executable's defaults (replay an imu_tools YAML as the "
+                   'drop-in node of that name would run it)')
     r.add_argument('--copy-input', action='store_true', help='also copy every input message to the output')
     r.add_argument('--overwrite', action='store_true', help='replace an existing output bag')
     r.add_argument('--storage', choices=STORAGES, default='mcap', help='output storage')

@@ -370,3 +370,16 @@ def test_replay_reads_imu_tools_parameter_files_unchanged(sim_bag, tmp_path):
     data = Path(__file__).resolve().parent / 'data'
     for name in ('imu_filter.yaml', 'filter_config.yaml'):
         assert main(['replay', str(sim_bag), '-o', str(tmp_path / name), '--params-file', str(data / name)]) == 0
+
+
+def test_overwrite_never_deletes_a_folder_that_is_not_a_bag_nor_the_input(sim_bag, tmp_path, capsys):
+    data = tmp_path / 'data'
+    data.mkdir()
+    (data / 'notes.txt').write_text('precious')
+    assert main(['replay', str(sim_bag), '-o', str(data), '--overwrite']) == 2
+    assert 'not a bag' in capsys.readouterr().err and (data / 'notes.txt').exists()
+    assert main(['replay', str(sim_bag), '-o', str(sim_bag.parent), '--overwrite']) == 2
+    assert 'holds it' in capsys.readouterr().err and sim_bag.exists()
+    out = tmp_path / 'out'
+    assert main(['replay', str(sim_bag), '-o', str(out)]) == 0
+    assert main(['replay', str(sim_bag), '-o', str(out), '--overwrite']) == 0  # a bag: replaced

@@ -186,6 +186,15 @@ def test_complementary_filter_config_yaml_declared_and_its_qos_override_applied(
         np.testing.assert_array_equal(_xyzw(h.out), _ref_xyzw(ref))
         # The complementary filter's output rate is bias-corrected (do_bias_estimation true).
         assert node.engine.settings.bias_corrected_rate
+        # `ccf replay --profile complementary_filter_node --params-file filter_config.yaml` runs the same engine.
+        from ccf_ros.cli import _engine, build_parser
+
+        args = build_parser().parse_args(['replay', 'in', '-o', 'out', '--profile', 'complementary_filter_node',
+                                           '--params-file', str(COMPLEMENTARY_YAML)])
+        offline = _replay_reference(imu_only, engine=_engine(args))
+        np.testing.assert_array_equal(_xyzw(h.out), _ref_xyzw(offline))
+        rates = np.array([(m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z) for m in h.out])
+        np.testing.assert_array_equal(rates, [o.angular_velocity for o in offline])
     finally:
         h.close()
 
@@ -410,9 +419,10 @@ def test_debug_topics_have_the_anchors_names_and_values(context, inputs, profile
         assert not ({'/imu/rpy/filtered', '/imu/rpy/raw', '/imu/steady_state'} - topics) & names
         h.wait_connected()
         assert h.spin_until(lambda: all(h.io.count_publishers(t) > 0 for t in topics))
-        msgs = inputs[:400] if node.sub_mag is not None else [(IMU, m) for m in _imu_only(inputs[:400])]
-        h.feed(msgs, 200)
-        assert h.spin_until(lambda: all(len(v) == 200 for v in got.values())), {k: len(v) for k, v in got.items()}
+        # 600 samples (2.1 s) of the simulation's rest: longer than the rest detector's 1.5 s.
+        msgs = inputs[:1200] if node.sub_mag is not None else [(IMU, m) for m in _imu_only(inputs[:1200])]
+        h.feed(msgs, 600)
+        assert h.spin_until(lambda: all(len(v) == 600 for v in got.values())), {k: len(v) for k, v in got.items()}
         q = [(m.orientation.w, m.orientation.x, m.orientation.y, m.orientation.z) for m in h.out]
         filtered = np.array([(v.vector.x, v.vector.y, v.vector.z) for v in got['/imu/rpy/filtered']])
         np.testing.assert_allclose(filtered, [rpy_of(x) for x in q], rtol=0, atol=1e-12)
@@ -427,8 +437,12 @@ def test_debug_topics_have_the_anchors_names_and_values(context, inputs, profile
             # At rest (start of the simulation) the raw attitude is the filtered one, within noise.
             assert np.abs(np.degrees(raw[:100, :2] - filtered[:100, :2])).max() < 2.0
         if '/imu/steady_state' in topics:
-            assert {m.data for m in got['/imu/steady_state']} <= {True, False}
-            assert got['/imu/steady_state'][-1].data == node.engine.filter.flags.at_rest
+            # The simulation starts at rest: not steady until the rest detector's minimum time has passed, then
+            # steady; each message carries the flag after its own sample.
+            steady = [m.data for m in got['/imu/steady_state']]
+            assert steady[0] is False and steady[-1] == node.engine.filter.flags.at_rest
+            assert steady.index(True) == 429  # 1.5 s at 286 Hz
+            assert all(steady[steady.index(True):])  # and stays steady while the body rests
     finally:
         h.close()
 

@@ -97,9 +97,9 @@ class Harness:
             self.node.destroy_node()
 
 
-def _replay_reference(messages, settings=None):
+def _replay_reference(messages, settings=None, engine=None):
     """What `ccf replay` computes for the same messages in the same order: the shared engine's outputs."""
-    eng = ImuEngine(*build(settings or {}, strict=False))
+    eng = engine or ImuEngine(*build(settings or {}, strict=False))
     out = []
     for topic, msg in messages:
         s = msg.header.stamp

@@ -155,6 +155,12 @@ def refuse_existing(path: Path, overwrite: bool) -> None:
         raise BagError(f'{path} exists; pass --overwrite to replace it')
 
 
+def _replaceable_dir(path: Path) -> bool:
+    """A folder ``--overwrite`` may replace: a rosbag2 bag (``metadata.yaml`` and storage files only) or empty."""
+    names = {p.name for p in path.iterdir()}
+    return not names or ('metadata.yaml' in names and all(p.is_file() for p in path.iterdir()))
+
+
 @contextmanager
 def staged(path: str | Path) -> Iterator[Path]:
     """Where to write a new bag (or file) that becomes ``path`` only when complete: an error or Ctrl-C leaves no
@@ -171,6 +177,8 @@ def staged(path: str | Path) -> Iterator[Path]:
         stage.mkdir(parents=True)  # the output's folder too, if it does not exist yet
     except OSError as err:
         raise BagError(f'cannot create {stage}: {err.strerror}') from err
+    if path.is_dir() and not path.is_symlink() and not _replaceable_dir(path):
+        raise BagError(f'{path} is a folder that is not a bag; refusing to replace it (choose another output)')
     try:
         yield stage / path.name
         if path.exists() or path.is_symlink():

@@ -118,8 +118,8 @@ def replay(
     """
     bag_out = Path(bag_out)
     refuse_existing(bag_out, overwrite)
-    if bag_out.resolve() == Path(bag_in).resolve():
-        raise BagError('output bag must differ from the input bag')
+    if bag_out.resolve() == Path(bag_in).resolve() or bag_out.resolve() in Path(bag_in).resolve().parents:
+        raise BagError(f'output {bag_out} must neither be the input bag nor a folder that holds it')
     topics = Topics(imu_topic, mag_topic, out_imu_topic, out_bias_topic)
     t0 = time.perf_counter()
     with staged(bag_out) as tmp, open_bag(bag_in) as reader, open_writer(tmp, storage) as writer:
