@@ -318,6 +318,7 @@ def main() -> None:
 def broad_through_node() -> None:
     """A BROAD trial at 286 Hz through the installed ccf_node vs the offline engine on the same samples."""
     from ccf_ros.core import make_filter
+    from ccf_ros.core.quaternion import from_xyzw
     from ccf_ros.engine import ImuEngine
     from ccf_ros.offline.bagio import read_imu_arrays
     from ccf_ros.offline.evaluate import align
@@ -331,7 +332,7 @@ def broad_through_node() -> None:
         if np.isfinite(m[0]):
             eng.on_mag(t, tuple(m))
         o = eng.on_imu(t, tuple(g), tuple(a))
-        ref.append((o.orientation_xyzw[3], *o.orientation_xyzw[:3]) if o else (np.nan,) * 4)
+        ref.append(from_xyzw(*o.orientation_xyzw) if o else (np.nan,) * 4)
     ref = np.array(ref)
     print(f'  (reference: {len(ref)} samples through the same engine, magnetometer paired by stamp)')
     q = align(res.t_s, res.quat, imu.t_s, ref)

@@ -117,11 +117,16 @@ def defaults_for(profile: NodeProfile) -> dict[str, Any]:
     return out
 
 
+def bias_estimation_off(values: Mapping[str, Any]) -> bool:
+    """True if ``values`` say ``do_bias_estimation: false`` (a bool, or as text in a parameter file)."""
+    flag = values.get('do_bias_estimation', True)
+    return flag is False or (isinstance(flag, str) and flag.strip().lower() in ('false', '0', 'no', 'off'))
+
+
 def apply_do_bias_estimation(values: dict[str, Any], profile: NodeProfile) -> None:
     """imu_tools' ``do_bias_estimation: false`` switches bias learning off (and, for the complementary filter, the
     bias-corrected rate). Edits ``values`` in place."""
-    flag = values.get('do_bias_estimation', True)
-    if flag is False or (isinstance(flag, str) and flag.strip().lower() in ('false', '0', 'no', 'off')):
+    if bias_estimation_off(values):
         values['rest_bias'] = False
         values['motion_bias'] = False
         if profile.bias_from_do_bias_estimation:
@@ -130,7 +135,7 @@ def apply_do_bias_estimation(values: dict[str, Any], profile: NodeProfile) -> No
 
 def bias_estimation_notice(values: Mapping[str, Any], profile: NodeProfile) -> str | None:
     """What ``do_bias_estimation: false`` switches off (see :func:`apply_do_bias_estimation`), or None."""
-    if values.get('do_bias_estimation', True) is not False:
+    if not bias_estimation_off(values):
         return None
     also = ' and bias_corrected_rate' if profile.bias_from_do_bias_estimation else ''
     return f'do_bias_estimation=false: gyro-bias learning off (rest_bias and motion_bias false{also})'

@@ -59,6 +59,7 @@ from .compat import (
     NodeProfile,
     apply_do_bias_estimation,
     bias_estimation_notice,
+    bias_estimation_off,
     defaults_for,
     gain_notices,
     tf_transform,
@@ -273,7 +274,7 @@ class CcfNode(Node):
             self.pub_rpy = self._quiet_publisher(Vector3Stamped, prof.rpy_filtered_topic)
         if debug and self.pub_rpy_raw is None and prof.rpy_raw_topic:
             self.pub_rpy_raw = self._quiet_publisher(Vector3Stamped, prof.rpy_raw_topic)
-        steady = debug and st['do_bias_estimation'] is not False and prof.steady_state_topic is not None
+        steady = debug and not bias_estimation_off(st) and prof.steady_state_topic is not None
         if steady and self.pub_steady is None and prof.steady_state_topic:
             self.pub_steady = self._quiet_publisher(Bool, prof.steady_state_topic)
         self._debug = debug
@@ -317,7 +318,7 @@ class CcfNode(Node):
             # Same filter: new gains apply from the next sample, the orientation is kept.
             self.engine.filter.set_params(filt.params)
         else:
-            self.engine.filter = filt
+            self.engine.replace_filter(filt)
             self.get_logger().info(f'filter changed to {type(filt).__name__}: restarting the estimate')
         self.engine.set_settings(adapter)
         self._cache_settings()
@@ -533,7 +534,8 @@ class CcfNode(Node):
         tr.header.frame_id, tr.child_frame_id = parent, child
         r = tr.transform.rotation
         r.x, r.y, r.z, r.w = x, y, z, w
-        assert self.pub_tf is not None and self._tf_type is not None
+        if self.pub_tf is None or self._tf_type is None:  # publish_tf without tf2_msgs: warned once, no TF
+            return
         self.pub_tf.publish(self._tf_type(transforms=[tr]))
 
     def _bias_due(self, t: float) -> bool:

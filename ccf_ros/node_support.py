@@ -16,7 +16,7 @@ from collections import deque
 from collections.abc import Iterable
 from typing import Any, NamedTuple
 
-from .core.quaternion import WORLD_FRAMES, quat_from_acc_mag_scalar, rpy_of
+from .core.quaternion import WORLD_FRAMES, quat_from_acc_mag_scalar, quat_mul_scalar, rpy_of
 from .engine import ImuEngine
 from .errors import ParameterError
 from .sync import HoldStats
@@ -112,15 +112,8 @@ def raw_rpy(acc: Vec3, mag: Vec3 | None, world_frame: str) -> Vec3 | None:
     q = quat_from_acc_mag_scalar(ax, ay, az, mag[0], mag[1], mag[2], True)
     if q is None:
         return None
-    pw, px, py, pz = WORLD_FRAMES[world_frame]
-    qw, qx, qy, qz = q
     # ENU -> the world frame (as OrientationFilter.quaternion does): q_frame = p ⊗ q_enu.
-    return rpy_of((
-        pw * qw - px * qx - py * qy - pz * qz,
-        pw * qx + px * qw + py * qz - pz * qy,
-        pw * qy - px * qz + py * qw + pz * qx,
-        pw * qz + px * qy - py * qx + pz * qw,
-    ))
+    return rpy_of(quat_mul_scalar(WORLD_FRAMES[world_frame], q))
 
 
 _HEADER = struct.Struct('<iII')  # after the 4-byte encapsulation: sec, nanosec, frame_id length (with its NUL)

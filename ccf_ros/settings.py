@@ -107,7 +107,7 @@ DESCRIPTIONS: dict[str, str] = {
     'mag_bias_y': 'magnetometer hard-iron offset, y, T',
     'mag_bias_z': 'magnetometer hard-iron offset, z, T',
     'mag_soft_iron': 'magnetometer soft-iron matrix, row-major 3x3, applied after the offset: m = S (m_raw - b)',
-    'yaw_offset': 'output turned by yaw_offset - declination about world up, rad (imu_tools semantics)',
+    'yaw_offset': 'output turned by yaw_offset - declination about world z (down in ned), rad (imu_tools semantics)',
     'declination': 'local magnetic declination, rad (east positive); see yaw_offset',
     'remove_gravity_vector': 'publish linear_acceleration with gravity (9.80665 m/s^2, up) removed',
     'stateless': 'publish the orientation computed from each accelerometer (+ magnetometer) sample alone (debug)',
@@ -166,7 +166,7 @@ class AdapterSettings:
 
     @property
     def yaw_turn_rad(self) -> float:
-        """The output's turn about world up, rad: ``yaw_offset - declination`` (imu_tools' convention)."""
+        """The output's turn about the world frame's z axis, rad: ``yaw_offset - declination`` (imu_tools')."""
         return self.yaw_offset - self.declination
 
 

@@ -13,6 +13,7 @@ from ccf_ros.compat import (
     PROFILES,
     apply_do_bias_estimation,
     bias_estimation_notice,
+    bias_estimation_off,
     defaults_for,
     gain_notices,
     tf_transform,
@@ -76,6 +77,13 @@ def test_do_bias_estimation_false_switches_bias_learning_off():
     assert 'bias_corrected_rate' in bias_estimation_notice({'do_bias_estimation': False},
                                                            PROFILES['complementary_filter_node'])
     assert bias_estimation_notice({'do_bias_estimation': True}, PROFILES['ccf_node']) is None
+    # A parameter file's text means the same everywhere (switch, notice, the steady_state topic).
+    for text in ('false', 'False', ' off', 'no', '0'):
+        assert bias_estimation_off({'do_bias_estimation': text}), text
+        assert bias_estimation_notice({'do_bias_estimation': text}, PROFILES['ccf_node']) is not None
+    for value in (True, 'true', 'yes', 1):
+        assert not bias_estimation_off({'do_bias_estimation': value}), value
+    assert not bias_estimation_off({})
 
 
 def test_tf_is_the_orientation_or_its_inverse():
