@@ -244,6 +244,9 @@ def diagnostics(
         'unreadable messages dropped': str(stats.n_unreadable),
         'magnetometer age (s)': f'{mag_age:.2f}' if math.isfinite(mag_age) else 'never',
         'gyro bias norm (deg/s)': f'{bias_deg_s:.3f}',
+        'gyro bias 1-sigma per axis (deg/s)': (
+            f'{math.degrees(sigma):.3f}' if (sigma := getattr(engine.filter, 'gyro_bias_sigma_rad_s', None)) is not None
+            else 'not estimated'),
         'resets after clock jumps': str(engine.n_resets_jump),
         'gyro-only samples (bad accelerometer)': str(engine.n_no_acc),
         'samples without heading (bad magnetometer)': str(engine.n_no_mag),

@@ -224,8 +224,10 @@ def test_cascade_matches_its_small_angle_transfer_function(kind, f_hz):
     h = _cascade_response(p, f_hz, kind)
     h_a, h_w = tilt_transfer(p, f_hz)
     ref = h_a if kind == 'acc' else h_w
-    assert 20 * math.log10(abs(h)) == pytest.approx(20 * math.log10(abs(ref)), abs=0.5)
-    assert np.degrees(np.angle(h / ref)) == pytest.approx(0.0, abs=5.0)
+    # Measured: within 0.01 dB everywhere; phase within 0.07° except the rate path at 0.3 and 1 Hz (0.5°, 1.8°: the
+    # estimate is half a sample ahead for point samples, 360° f dt / 2).
+    assert 20 * math.log10(abs(h)) == pytest.approx(20 * math.log10(abs(ref)), abs=0.012)
+    assert np.degrees(np.angle(h / ref)) == pytest.approx(0.0, abs=2.2 if kind == 'rate' and f_hz > 0.1 else 0.1)
     # A single PI stage (the NCF alone, eq 11, as the previous default was) lets far more acceleration through.
     if kind == 'acc' and f_hz == 0.3:
         s = 2j * math.pi * f_hz
@@ -402,3 +404,71 @@ def test_sample_timing_constant_rotation_at_40_hz(averaged):
     assert np.abs(q[:, 2:]).max() < 1e-6
     assert np.abs(err).max() < 0.05, np.abs(err).max()  # measured 0.041 (first-order half-step rotation)
     assert np.degrees(np.abs(filt.gyro_bias).max()) < 0.006  # °/s; measured 0.0045
+
+
+def _flags_per_sample(filt, d, mag):
+    out = []
+    for k in range(len(d.t_s)):
+        filt.update(float(d.t_s[k]), tuple(d.gyr[k]), tuple(d.acc[k]), tuple(mag[k]))
+        out.append((filt.flags.mag_used, filt.flags.mag_disturbed, filt.quaternion))
+    used, disturbed, q = (np.array(v) for v in zip(*out, strict=True))
+    return used, disturbed, q
+
+
+def test_magnetic_disturbance_is_flagged_ignored_and_cleared_when_the_field_returns():
+    d = generate(60.0, 200.0, seed=5)
+    t = d.t_s - d.t_s[0]
+    bad = (t >= 20.0) & (t < 30.0)
+    mag = d.mag.copy()
+    c, s = math.cos(math.radians(30.0)), math.sin(math.radians(30.0))
+    x, y = mag[bad, 0].copy(), mag[bad, 1].copy()
+    mag[bad, 0], mag[bad, 1] = c * x - s * y, s * x + c * y
+    mag[bad] *= 1.3  # 30 % stronger and turned 30° about body z: a magnet nearby
+    used, disturbed, q = _flags_per_sample(QuaternionCcf(), d, mag)
+    used_clean, disturbed_clean, q_clean = _flags_per_sample(QuaternionCcf(), d, d.mag)
+    assert not disturbed[t < 20.0].any() and used[t < 20.0].all()
+    assert disturbed[bad].all() and not used[bad].any()
+    # From the first sample of the normal field on, the flags are those of the undisturbed run (which rejects a
+    # few samples of its own: the dip is measured against an accelerometer that sees linear acceleration).
+    after = t >= 30.0
+    np.testing.assert_array_equal(disturbed[after], disturbed_clean[after])
+    np.testing.assert_array_equal(used[after], used_clean[after])
+    assert used[after].mean() > 0.99
+    # Meanwhile the heading went on with the gyro alone: within 1° of the undisturbed run (measured 0.80°).
+    from ccf_ros.core.metrics import error_angles
+
+    assert np.degrees(np.abs(error_angles(q, q_clean)[1][bad])).max() < 1.0
+
+
+def test_a_new_field_steady_for_mag_reaccept_s_becomes_the_reference():
+    d = generate(120.0, 200.0, seed=6)
+    t = d.t_s - d.t_s[0]
+    mag = d.mag.copy()
+    mag[t >= 20.0] *= 1.3  # e.g. the robot parked beside steel: a new normal
+    p = CcfParams()
+    used, disturbed, _ = _flags_per_sample(QuaternionCcf(p), d, mag)
+    wait = (t >= 20.0) & (t < 20.0 + p.mag_reaccept_s)
+    assert disturbed[wait].all() and not used[wait].any()
+    after = t >= 20.0 + p.mag_reaccept_s + 0.01
+    assert not disturbed[after].any() and used[after].all()
+
+
+def test_bias_uncertainty_schedule_rest_makes_it_small_motion_lets_it_grow():
+    d = generate(65.0, 200.0, seed=7, rest_s=10.0, bias_walk_rad_s_sqrt_s=0.0)
+    t = d.t_s - d.t_s[0]
+    p = CcfParams()
+    f = QuaternionCcf(p)
+    assert f.gyro_bias_sigma_rad_s == p.bias_sigma_init_rad_s
+    sigma = []
+    for k in range(len(t)):
+        f.update(float(d.t_s[k]), tuple(d.gyr[k]), tuple(d.acc[k]), tuple(d.mag[k]))
+        sigma.append(f.gyro_bias_sigma_rad_s)
+    sigma = np.degrees(sigma)
+    end_rest = np.searchsorted(t, 10.0) - 1
+    assert sigma[end_rest] < 0.024, sigma[end_rest]  # °/s: bias_sigma_rest_rad_s (0.02) reached (measured 0.0200)
+    # Moving: the variance grows by bias_walk² per second (random walk), never above the initial value.
+    grow = np.degrees(p.bias_walk_rad_s_sqrt_s) ** 2 * (t[-1] - t[end_rest])
+    assert sigma[-1] ** 2 == pytest.approx(sigma[end_rest] ** 2 + grow, rel=0.05)
+    assert np.all(np.diff(sigma[end_rest + 200:]) >= 0.0)
+    # ... and the bias learnt at rest stays put while moving (the NCF's gain is scaled by the variance).
+    assert np.degrees(np.abs(f.gyro_bias - d.bias[-1])).max() < 0.017  # °/s, measured 0.014

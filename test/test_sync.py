@@ -463,4 +463,7 @@ def test_diagnostics_values_show_filter_flags_counters_and_hold_statistics():
     assert (v['samples held for magnetometer'], v['hold timeouts'], v['hold max (ms)'], v['hold mean (ms)'],
             v['magnetometer in lock-step']) == ('12', '1', '20.40', '1.250', 'true')
     assert v['magnetometer samples in'] == '1' and v['non-finite state resets'] == '0'
-    assert float(v['gyro bias norm (deg/s)']) >= 0.0
+    bias_norm = math.degrees(math.hypot(*eng.filter.gyro_bias))
+    assert float(v['gyro bias norm (deg/s)']) == pytest.approx(bias_norm, abs=1e-3)
+    assert float(v['gyro bias 1-sigma per axis (deg/s)']) == pytest.approx(
+        math.degrees(eng.filter.gyro_bias_sigma_rad_s), abs=1e-3)

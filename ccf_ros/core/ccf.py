@@ -579,6 +579,13 @@ class QuaternionCcf(OrientationFilter):
         return self._bias
 
     @property
+    def gyro_bias_sigma_rad_s(self) -> float:
+        """1-σ uncertainty of :attr:`gyro_bias` per axis, rad/s: ``bias_sigma_init_rad_s`` while nothing is known,
+        ``bias_sigma_rest_rad_s`` after a rest, growing back with ``bias_walk_rad_s_sqrt_s`` (it scales the NCF's
+        integral gain and the reported drift variance)."""
+        return self.params.bias_sigma_init_rad_s * sqrt(self._u_bias)
+
+    @property
     def ncf_quaternion(self) -> Quat:
         """The NCF stage's own attitude ``exp(dn) ⊗ q`` (internal ENU frame), ``(w, x, y, z)``."""
         qw, qx, qy, qz = self._q
