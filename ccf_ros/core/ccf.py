@@ -22,8 +22,8 @@ accelerometer/magnetometer attitude — made to work in 3-D, at any sample rate,
 2. **LCF (output stage).** The published attitude ``q`` integrates the bias-corrected rate and is blended towards
    ``g_lp`` (inclination, time constant ``tau_acc_s``) and towards the magnetometer heading (rotation about world
    up only, ``tau_mag_s``), so a magnetic disturbance never tilts the estimate. A field whose norm or dip departs from
-   the reference learnt after the (re)initialisation is ignored for heading until it agrees again (or stays steady
-   for ``mag_reaccept_s``: a new normal).
+   the reference is ignored for heading until it agrees again (or stays steady for ``mag_reaccept_s``: a new
+   normal). The reference is the mean field of the first ``mag_ref_learn_s`` after a (re)initialisation.
 
 Small-angle transfer functions (one tilt axis; ``k_f = 1/tau_acc_lp_s``, ``K_n = 1/tau_ncf_s``,
 ``K_i = 1/(tau_ncf_s tau_bias_s)``, ``K_a = 1/tau_acc_s``, ``P = (s + k_f)(s + K_n)``, ``Q = s P + K_i k_f``), from the
@@ -63,8 +63,10 @@ _DEG = math.pi / 180.0
 #: Standard gravity, m/s² (REP-145 accelerometers read +g up at rest).
 GRAVITY_M_S2 = 9.80665
 _INV_G = 1.0 / GRAVITY_M_S2
-#: Largest NCF heading error used, rad (see _step).
+#: Largest NCF heading error the bias integral uses, rad (see _step).
 _HEAD_ERR_MAX = 5.0 * _DEG
+#: The new-field timer loses this many seconds per second of samples that disagree with the candidate.
+_LEAK = 3.0
 
 
 @dataclass(frozen=True)
@@ -91,8 +93,14 @@ class CcfParams(CommonParams):
         mag_norm_tol: relative deviation of the magnetometer norm from its reference that counts as disturbed.
             Default 0.05 (a calibrated magnetometer stays well within it).
         mag_dip_tol_rad: deviation of the magnetic dip angle that counts as disturbed, rad. Default 5°.
-        mag_reaccept_s: a different field that stays steady (within the tolerances) this long becomes the new
-            reference, s: a moved robot or a new mounting does not disable heading forever. Default 60.
+        mag_reaccept_s: a different field that stays steady (within the tolerances, most of the time) this long
+            becomes the new reference, s: a moved robot, a new mounting or a reference learnt while the tilt was
+            still wrong does not disable heading for long. Default 20 (VQF's choice for the same rule).
+        mag_ref_learn_s: the reference field (norm and dip) is the mean of the samples of this long after it is
+            first set (after a (re)initialisation or a new field), s, all of them used for heading meanwhile; 0: the
+            first sample alone. One sample is a lottery: a MEMS magnetometer's norm scatters by ~1.5 % per sample,
+            a third of the 5 % tolerance. The mean weights the samples linearly in time, because after an
+            initialisation while moving the tilt, and so the dip, converges like 1/t. Default 5 (twice tau_acc_s).
         incl_sigma_rad: reported standard deviation of roll and of pitch while the accelerometer corrects them, rad
             (typical MEMS calibration/alignment error plus residual linear acceleration). Default 0.5°.
         heading_sigma_rad: reported heading standard deviation while the magnetometer corrects it, rad (residual
@@ -122,7 +130,8 @@ class CcfParams(CommonParams):
     bias_max_rad_s: float = 2.0 * _DEG
     mag_norm_tol: float = 0.05
     mag_dip_tol_rad: float = 5.0 * _DEG
-    mag_reaccept_s: float = 60.0
+    mag_reaccept_s: float = 20.0
+    mag_ref_learn_s: float = 5.0
     incl_sigma_rad: float = 0.5 * _DEG
     heading_sigma_rad: float = 1.7 * _DEG
     gyro_arw_rad_sqrt_s: float = 3e-4
@@ -139,6 +148,7 @@ class CcfParams(CommonParams):
             'bias_walk_rad_s_sqrt_s',
         ):
             check_positive(name, getattr(self, name))
+        check_range('mag_ref_learn_s', self.mag_ref_learn_s, 0.0, 3600.0)
         check_range('mag_dip_tol_rad', self.mag_dip_tol_rad, 0.0, math.pi)
         for name in ('motion_bias', 'rest_bias'):
             if not isinstance(getattr(self, name), bool):
@@ -230,14 +240,15 @@ class QuaternionCcf(OrientationFilter):
     """NCF -> LCF cascade on unit quaternions; see the module docstring.
 
     State (all reset by :meth:`reset`): LCF orientation ``q``, gyro bias (rad/s, body), filtered gravity ``g_lp``
-    (m/s², body), NCF attitude offset ``dn`` (rad, world frame), rest-detector low-pass and timer, magnetometer reference,
-    drift variances (rad²) and bias uncertainty (rad/s).
+    (m/s², body), NCF attitude offset ``dn`` (rad, world frame), rest-detector low-pass and timer, magnetometer reference
+    (with its learning window) and new-field candidate, drift variances (rad²) and bias uncertainty (rad/s).
     """
 
     name = 'ccf'
     __slots__ = (
         '_bias', '_coef', '_dn', '_g_lp', '_gyro_lp', '_heading_known', '_mag_bounds', '_mag_candidate',
-        '_mag_disturbed_s', '_mag_have_ref', '_mag_ref', '_n_init', '_rest_s', '_u_bias', '_var_head', '_var_incl',
+        '_mag_have_ref', '_mag_learn_n', '_mag_learn_s', '_mag_new_s', '_mag_ref', '_mag_rejected_t', '_n_init',
+        '_rest_s', '_u_bias', '_var_head', '_var_incl',
     )
     params: CcfParams
 
@@ -264,9 +275,12 @@ class QuaternionCcf(OrientationFilter):
         self._mag_ref = (0.0, 0.0)
         # Bounds that accept nothing, so that the first sample goes through _mag_rejected and sets the reference.
         self._mag_bounds = (math.inf, -math.inf, 2.0, -2.0)
-        self._mag_candidate = self._mag_bounds
+        self._mag_candidate = (0.0, 0.0, 0.0)
         self._mag_have_ref = False
-        self._mag_disturbed_s = 0.0
+        self._mag_new_s = 0.0
+        self._mag_rejected_t = -math.inf
+        self._mag_learn_s = 0.0
+        self._mag_learn_n = 0
         self.mag_disturbed = False
 
     def _bounds(self, norm: float, sin_dip: float) -> tuple[float, float, float, float]:
@@ -288,20 +302,26 @@ class QuaternionCcf(OrientationFilter):
     def _set_mag_reference(self, norm: float, sin_dip: float) -> None:
         """Accept a field of ``norm`` (sensor unit) and dip ``asin(sin_dip)`` as undisturbed."""
         self._mag_ref = (norm, sin_dip)
-        self._mag_bounds = self._bounds(norm, sin_dip)
-        self._mag_candidate = self._mag_bounds
         self._mag_have_ref = True
-        self._mag_disturbed_s = 0.0
+        self._mag_new_s = 0.0
         self.mag_disturbed = False
+        self._mag_learn_n = 1
+        self._mag_learn_s = self.params.mag_ref_learn_s
+        if self._mag_learn_s > 0.0:
+            # Learning: the reference is the mean of the samples of the next mag_ref_learn_s, all accepted; bounds
+            # that accept nothing route them through _mag_rejected, off the common path.
+            self._mag_bounds = (math.inf, -math.inf, 2.0, -2.0)
+        else:
+            self._mag_bounds = self._bounds(norm, sin_dip)
+        self._mag_candidate = (0.0, 0.0, 0.0)
 
     def _params_changed(self) -> None:
         self._coef = _Coefficients.of(self.params, 0.0)
         if not self.params.rest_bias:
             self.at_rest = False
             self._rest_s = 0.0
-        if self._mag_have_ref:
+        if self._mag_have_ref and self._mag_learn_s <= 0.0:
             self._mag_bounds = self._bounds(*self._mag_ref)
-            self._mag_candidate = self._mag_bounds
 
     def _init(self, ax: float, ay: float, az: float, mx: float, my: float, mz: float, mag_ok: bool) -> None:
         q: Quat | None = quat_from_acc_mag_scalar(ax, ay, az, mx, my, mz, mag_ok)
@@ -401,21 +421,18 @@ class QuaternionCcf(OrientationFilter):
             ):
                 if self.mag_disturbed:
                     self.mag_disturbed = False
-                    self._mag_disturbed_s = 0.0
                 # Horizontal field in the world frame must point to +y (north in ENU). The correction is a rotation
                 # about world up (v in body coordinates): heading only, never tilt.
                 d = atan2(r0x * mx + r0y * my + r0z * mz, r1x * mx + r1y * my + r1z * mz)
                 kd = k_mag * d
-                # NCF heading error (its heading is the LCF's turned by dnz about world up), limited: a larger one
-                # means the heading has not converged yet, which is no information about the bias.
+                # NCF heading error (its heading is the LCF's turned by dnz about world up). Its own heading takes
+                # all of it; the bias integral only what is within ±_HEAD_ERR_MAX: a larger one means the heading
+                # has not converged yet (a start, a new field), which is no information about the bias.
                 hn = d - dnz
-                if hn > _HEAD_ERR_MAX:
-                    hn = _HEAD_ERR_MAX
-                elif hn < -_HEAD_ERR_MAX:
-                    hn = -_HEAD_ERR_MAX
-                nx += hn * vx
-                ny += hn * vy
-                nz += hn * vz
+                hi = hn if -_HEAD_ERR_MAX < hn < _HEAD_ERR_MAX else 0.0
+                nx += hi * vx
+                ny += hi * vy
+                nz += hi * vz
                 cx += kd * vx
                 cy += kd * vy
                 cz += kd * vz
@@ -438,7 +455,8 @@ class QuaternionCcf(OrientationFilter):
         # bias variance u relative to bias_sigma_init² (Kalman-like): a rest makes u small, so a precise rest estimate
         # is refined only slowly while moving; u grows back as that knowledge ages (bias random walk).
         u = self._u_bias
-        k = c.k_int * u
+        # Not during the start-up (ni): the errors then are the initial attitude's, not the bias's.
+        k = 0.0 if ni else c.k_int * u
         bx -= k * nx
         by -= k * ny
         bz -= k * nz
@@ -559,18 +577,46 @@ class QuaternionCcf(OrientationFilter):
         if not self._mag_have_ref:
             self._set_mag_reference(norm, sin_dip)
             return True
+        if self._mag_learn_s > 0.0:
+            # Weights growing linearly with the sample's index: after a (re)initialisation while moving, the tilt
+            # (and so the dip) converges like 1/t, and the early samples count least.
+            i = self._mag_learn_n = self._mag_learn_n + 1
+            k = 2.0 / (i + 1)
+            rn, rs = self._mag_ref
+            self._mag_ref = (rn + k * (norm - rn), rs + k * (sin_dip - rs))
+            self._mag_learn_s -= dt
+            if self._mag_learn_s <= 0.0:
+                self._mag_bounds = self._bounds(*self._mag_ref)
+            return True
         self.mag_disturbed = True
-        lo2, hi2, lo_dip, hi_dip = self._mag_candidate
-        if lo2 <= mag_n2 <= hi2 and lo_dip <= sin_dip <= hi_dip:
-            self._mag_disturbed_s += dt
-            if self._mag_disturbed_s > self.params.mag_reaccept_s:
+        # The candidate new field: the mean (norm, sin dip) of the rejected samples that agree with it, n of them,
+        # and a leaky timer: + dt per agreeing sample, - _LEAK x the time of any other sample (an outlier, or the
+        # accepted ones since the last rejection). A field that agrees most of the time for mag_reaccept_s becomes
+        # the reference; single outliers (noise, a tilt error while moving) do not restart it.
+        cn, cs, n = self._mag_candidate  # n: a float count (0.0: no candidate yet)
+        p = self.params
+        t = self._t_last
+        timer = self._mag_new_s - _LEAK * (t - self._mag_rejected_t - dt)
+        self._mag_rejected_t = t
+        if n and abs(norm - cn) <= p.mag_norm_tol * cn and abs(sin_dip - cs) <= p.mag_dip_tol_rad * sqrt(
+            max(1.0 - cs * cs, 1e-6)
+        ):
+            n += 1.0
+            cn += (norm - cn) / n
+            cs += (sin_dip - cs) / n
+            self._mag_candidate = (cn, cs, n)
+            timer += dt
+            if timer > p.mag_reaccept_s:
                 # A different field that stayed steady this long is the new normal (moved robot, new mounting).
-                self._set_mag_reference(norm, sin_dip)
+                self._set_mag_reference(cn, cs)
                 return True
         else:
-            # Not steady: start timing a new candidate field.
-            self._mag_candidate = self._bounds(norm, sin_dip)
-            self._mag_disturbed_s = 0.0
+            timer -= _LEAK * dt
+        if timer <= 0.0:
+            # Not steady: start timing a new candidate field from this sample.
+            self._mag_candidate = (norm, sin_dip, 1.0)
+            timer = 0.0
+        self._mag_new_s = timer
         return False
 
     @property
