@@ -496,9 +496,13 @@ def test_a_new_field_with_outliers_still_becomes_the_reference():
     mag[t >= 20.0] *= 1.3
     outlier = (t >= 20.0) & (np.random.default_rng(0).random(len(t)) < 0.1)
     mag[outlier] *= 1.5
-    used, _, _ = _flags_per_sample(QuaternionCcf(p), d, mag)
+    used, disturbed, _ = _flags_per_sample(QuaternionCcf(p), d, mag)
     first = t[np.flatnonzero((t >= 20.0) & used & ~outlier)[0]] - 20.0
     assert p.mag_reaccept_s < first < 1.2 * p.mag_reaccept_s / 0.6  # measured 33.8 s
+    # The reference is then the candidate's mean without the outliers: every normal sample used from there on,
+    # every outlier rejected (re-learning it with the gate open would average the outliers in).
+    after = t > 20.0 + first
+    assert used[after & ~outlier].all() and disturbed[after & outlier].all()
 
 
 def test_a_large_heading_error_is_not_learnt_as_gyro_bias():

@@ -60,6 +60,8 @@ from .base import CommonParams, OrientationFilter, check_positive, check_range
 from .quaternion import Quat, level_quat, quat_from_acc_mag_scalar, relevel
 
 _DEG = math.pi / 180.0
+_PI = math.pi
+_TWO_PI = 2.0 * math.pi
 #: Standard gravity, m/s² (REP-145 accelerometers read +g up at rest).
 GRAVITY_M_S2 = 9.80665
 _INV_G = 1.0 / GRAVITY_M_S2
@@ -299,14 +301,15 @@ class QuaternionCcf(OrientationFilter):
             math.sin(min(math.pi / 2, dip + p.mag_dip_tol_rad)),
         )
 
-    def _set_mag_reference(self, norm: float, sin_dip: float) -> None:
-        """Accept a field of ``norm`` (sensor unit) and dip ``asin(sin_dip)`` as undisturbed."""
+    def _set_mag_reference(self, norm: float, sin_dip: float, *, learn: bool = True) -> None:
+        """Accept a field of ``norm`` (sensor unit) and dip ``asin(sin_dip)`` as undisturbed; with ``learn``, as the
+        first sample of the mean over the next ``mag_ref_learn_s`` that becomes the reference."""
         self._mag_ref = (norm, sin_dip)
         self._mag_have_ref = True
         self._mag_new_s = 0.0
         self.mag_disturbed = False
         self._mag_learn_n = 1
-        self._mag_learn_s = self.params.mag_ref_learn_s
+        self._mag_learn_s = self.params.mag_ref_learn_s if learn else 0.0
         if self._mag_learn_s > 0.0:
             # Learning: the reference is the mean of the samples of the next mag_ref_learn_s, all accepted; bounds
             # that accept nothing route them through _mag_rejected, off the common path.
@@ -327,7 +330,7 @@ class QuaternionCcf(OrientationFilter):
         q: Quat | None = quat_from_acc_mag_scalar(ax, ay, az, mx, my, mz, mag_ok)
         p = self.params
         if q is not None:
-            # The field at (re)initialisation is the reference of the disturbance gate.
+            # The field at (re)initialisation begins the reference of the disturbance gate (a mean, see above).
             an = sqrt(ax * ax + ay * ay + az * az)
             n = sqrt(mx * mx + my * my + mz * mz)
             self._set_mag_reference(n, (mx * ax + my * ay + mz * az) / (n * an))
@@ -336,7 +339,7 @@ class QuaternionCcf(OrientationFilter):
         else:
             # No heading from this sample: a re-initialisation keeps the heading it had (6-D: relative heading goes
             # on), a first initialisation starts at heading zero. The reference field is learnt from the next
-            # usable magnetometer sample.
+            # usable magnetometer samples.
             q = relevel(self._q, ax, ay, az) if self.initialized else level_quat(ax, ay, az)
             self._forget_mag_reference()
             if not self.initialized:
@@ -429,6 +432,10 @@ class QuaternionCcf(OrientationFilter):
                 # all of it; the bias integral only what is within ±_HEAD_ERR_MAX: a larger one means the heading
                 # has not converged yet (a start, a new field), which is no information about the bias.
                 hn = d - dnz
+                if hn > _PI:  # the NCF's heading takes all of it: the short way round
+                    hn -= _TWO_PI
+                elif hn < -_PI:
+                    hn += _TWO_PI
                 hi = hn if -_HEAD_ERR_MAX < hn < _HEAD_ERR_MAX else 0.0
                 nx += hi * vx
                 ny += hi * vy
@@ -571,8 +578,9 @@ class QuaternionCcf(OrientationFilter):
     def _mag_rejected(self, dt: float, mag_n2: float, norm: float, sin_dip: float) -> bool:
         """Book-keeping for a magnetometer sample outside the acceptance bounds (rare path).
 
-        Returns True if the sample is to be used after all: it became the reference (first usable sample after a
-        (re)initialisation, or a new field that stayed steady for ``mag_reaccept_s``).
+        Returns True if the sample is to be used after all: it began the reference (first usable sample after a
+        (re)initialisation), the reference is being learnt (the ``mag_ref_learn_s`` after that), or a new field
+        stayed steady long enough to become the reference.
         """
         if not self._mag_have_ref:
             self._set_mag_reference(norm, sin_dip)
@@ -590,9 +598,10 @@ class QuaternionCcf(OrientationFilter):
             return True
         self.mag_disturbed = True
         # The candidate new field: the mean (norm, sin dip) of the rejected samples that agree with it, n of them,
-        # and a leaky timer: + dt per agreeing sample, - _LEAK x the time of any other sample (an outlier, or the
-        # accepted ones since the last rejection). A field that agrees most of the time for mag_reaccept_s becomes
-        # the reference; single outliers (noise, a tilt error while moving) do not restart it.
+        # and a leaky timer: + dt per agreeing sample, - _LEAK x the time of anything else (an outlier, accepted
+        # samples or no magnetometer since the last rejection). A field that agrees for mag_reaccept_s net becomes
+        # the reference (with a fraction f of outliers after mag_reaccept_s / (1 - f (1 + _LEAK))); single
+        # outliers (noise, a tilt error while moving) do not restart it.
         cn, cs, n = self._mag_candidate  # n: a float count (0.0: no candidate yet)
         p = self.params
         t = self._t_last
@@ -607,8 +616,10 @@ class QuaternionCcf(OrientationFilter):
             self._mag_candidate = (cn, cs, n)
             timer += dt
             if timer > p.mag_reaccept_s:
-                # A different field that stayed steady this long is the new normal (moved robot, new mounting).
-                self._set_mag_reference(cn, cs)
+                # A different field that stayed steady this long is the new normal (moved robot, new mounting). Its
+                # mean over the agreeing samples is the reference at once: no learning window, which would average
+                # the outliers back in with the gate open.
+                self._set_mag_reference(cn, cs, learn=False)
                 return True
         else:
             timer -= _LEAK * dt

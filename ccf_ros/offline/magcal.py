@@ -18,9 +18,11 @@ has 6 more unknowns than a sphere and always fits a little better; what it fits 
 the field's own non-uniformity as the sensor moves through a room (steel in floors and benches), and that
 "calibration" turns the heading. Measured on BROAD's calibrated trials: the ellipsoid lowers the RMS radial residual
 by 2-4 % (ratio 0.96-0.98) and costs 0.4 deg of heading (1.35 -> 1.77 deg RMSE on trial 02); a soft-iron matrix
-of a few percent lowers it by 20-50 % (ratio 0.50-0.80). So ``auto`` keeps the ellipsoid where its residual is below
+of a few percent lowers it by 20-50 % (ratio 0.50-0.80). So ``auto`` keeps the ellipsoid where its RMS scatter
+(relative residual x radius: a huge sphere through a flat patch has a small relative one) is below
 :data:`SOFT_IRON_MIN_GAIN` x the offset-only (sphere) fit's, else it writes the offset with ``S`` a multiple of the
-identity. ``'ellipsoid'`` or ``'offset'`` force one model.
+identity. ``'ellipsoid'`` or ``'offset'`` force one model. Data that no believable ellipsoid fits (indefinite,
+elongated) is refused in ``auto`` too, even where a sphere would fit it: it says the recording misleads.
 
 Coverage: the calibrated directions are binned to the nearest of :data:`COVERAGE_BINS` Fibonacci-lattice
 directions (bins of ~4 pi / 100 sr, ~23 deg across); coverage is the fraction of bins with at least
@@ -428,12 +430,12 @@ def cmd_calibrate_mag(args: argparse.Namespace) -> int:
           f'coverage {cal.coverage:.0%} of directions')
     if cal.model == 'ellipsoid':
         why = 'forced by --model' if args.model == 'ellipsoid' else (
-            f'it lowers the residual below {SOFT_IRON_MIN_GAIN:g} x the offset-only fit\'s '
-            f'{cal.offset_only_residual_rel:.2%}')
+            f'it lowers the scatter below {SOFT_IRON_MIN_GAIN:g} x the offset-only fit\'s '
+            f'({cal.offset_only_residual_rel:.2%} RMS)')
         print(f'model: offset and soft iron ({why})')
     else:
         why = 'forced by --model' if args.model == 'offset' else (
-            f'a soft-iron matrix lowers the residual by less than {1 - SOFT_IRON_MIN_GAIN:.0%}: what is left is '
+            f'a soft-iron matrix lowers the scatter by less than {1 - SOFT_IRON_MIN_GAIN:.0%}: what is left is '
             'the field\'s non-uniformity, not the sensor\'s')
         print(f'model: offset only, S a multiple of the identity ({why})')
     if cal.coverage < COVERAGE_WARN:
@@ -470,7 +472,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                    help='local field norm, uT: the radius of the calibrated sphere; None: scale to det S = 1')
     p.add_argument('--model', choices=MODELS, default='auto',
                    help='ellipsoid: offset and soft-iron matrix; offset: offset only; auto: the soft-iron matrix '
-                   f'only where it lowers the RMS residual below {SOFT_IRON_MIN_GAIN:g} x the offset-only fit\'s')
+                   f'only where it lowers the RMS scatter below {SOFT_IRON_MIN_GAIN:g} x the offset-only fit\'s')
     p.add_argument('--overwrite', action='store_true', help='replace an existing output file')
     p.set_defaults(func=cmd_calibrate_mag)
     return p
