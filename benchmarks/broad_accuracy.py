@@ -10,12 +10,11 @@ last line per rate.
 
 from __future__ import annotations
 
-import argparse
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
+from _trials import map_trials, parser, trials_and_settings
 
 from ccf_ros.core import run_batch
 from ccf_ros.core.metrics import fit_heading_offset, summarize
@@ -23,7 +22,6 @@ from ccf_ros.offline.bagio import read_bools, read_imu_arrays, read_orientations
 from ccf_ros.offline.evaluate import align, mask_at
 from ccf_ros.settings import build
 
-DEFAULT_SHARED = Path(__file__).resolve().parents[2] / 'shared' / 'data' / 'broad'
 #: VQF's figures on these trials (shared/data/broad/README.md): online total, inclination, heading; 6-D fitted total.
 VQF = {
     '02': (1.38, 0.43, 1.31, 0.63), '05': (0.99, 0.35, 0.92, 0.67), '07': (1.75, 1.02, 1.43, 1.55),
@@ -73,18 +71,14 @@ def run_trial(args: tuple[Path, list[int], dict[str, str], bool]) -> tuple[str, 
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument('--shared', type=Path, default=DEFAULT_SHARED)
+    ap = parser(__doc__)
     ap.add_argument('--rates', default='1,3,6', help='decimation steps (1 = 286 Hz, 3 = 95 Hz, 6 = 48 Hz)')
     ap.add_argument('--no-6d', action='store_true', help='skip the run without magnetometer')
-    ap.add_argument('params', nargs='*', help='NAME=VALUE filter settings')
     a = ap.parse_args()
     steps = [int(s) for s in a.rates.split(',')]
-    settings = dict(p.split('=', 1) for p in a.params)
-    trials = sorted(p for p in a.shared.iterdir() if p.is_dir() and p.name[:2].isdigit())
+    trials, settings = trials_and_settings(a)
     t0 = time.time()
-    with ProcessPoolExecutor(2) as ex:
-        results = dict(ex.map(run_trial, [(t, steps, settings, not a.no_6d) for t in trials]))
+    results = dict(map_trials(run_trial, [(t, steps, settings, not a.no_6d) for t in trials]))
     for step in steps:
         key = str(step)
         print(f'\n== {286 / step:.0f} Hz  settings {settings or "defaults"}   (VQF online: total / inclination / heading)')

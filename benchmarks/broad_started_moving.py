@@ -7,11 +7,10 @@ Usage: python benchmarks/broad_started_moving.py [--shared ../shared/data/broad]
 
 from __future__ import annotations
 
-import argparse
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
+from _trials import map_trials, parser, trials_and_settings
 
 from ccf_ros.core import run_batch
 from ccf_ros.core.metrics import summarize
@@ -19,7 +18,6 @@ from ccf_ros.offline.bagio import read_bools, read_imu_arrays, read_orientations
 from ccf_ros.offline.evaluate import align, mask_at
 from ccf_ros.settings import build
 
-DEFAULT_SHARED = Path(__file__).resolve().parents[2] / 'shared' / 'data' / 'broad'
 STARTS = (0.3, 0.4, 0.55)
 
 
@@ -39,14 +37,8 @@ def run_trial(args: tuple[Path, dict[str, str]]) -> tuple[str, list[float]]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
-    ap.add_argument('--shared', type=Path, default=DEFAULT_SHARED)
-    ap.add_argument('params', nargs='*', help='NAME=VALUE filter settings')
-    args = ap.parse_args()
-    settings = dict(p.split('=', 1) for p in args.params)
-    trials = sorted(p for p in args.shared.iterdir() if p.is_dir() and p.name[:2].isdigit())
-    with ProcessPoolExecutor(2) as ex:
-        rows = list(ex.map(run_trial, [(t, settings) for t in trials]))
+    trials, settings = trials_and_settings(parser(__doc__).parse_args())
+    rows = map_trials(run_trial, [(t, settings) for t in trials])
     print(f'heading RMSE (deg) after a start at {" / ".join(f"{100 * s:.0f} %" for s in STARTS)} of the trial')
     for name, r in rows:
         print(f'{name:44s} ' + ' '.join(f'{x:7.2f}' for x in r))

@@ -10,19 +10,16 @@ Usage: python benchmarks/covariance.py [--shared ../shared/data/broad] [NAME=VAL
 
 from __future__ import annotations
 
-import argparse
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
+from _trials import map_trials, parser, trials_and_settings
 
 from ccf_ros.core import run_batch
 from ccf_ros.core.metrics import error_angles, fit_heading_offset
 from ccf_ros.offline.bagio import read_bools, read_imu_arrays, read_orientations
 from ccf_ros.offline.evaluate import align, mask_at
 from ccf_ros.settings import build
-
-DEFAULT_SHARED = Path(__file__).resolve().parents[2] / 'shared' / 'data' / 'broad'
 
 
 def run_trial(args: tuple[Path, dict[str, str]]) -> tuple[str, dict[str, float]]:
@@ -51,14 +48,9 @@ def run_trial(args: tuple[Path, dict[str, str]]) -> tuple[str, dict[str, float]]
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument('--shared', type=Path, default=DEFAULT_SHARED)
-    ap.add_argument('params', nargs='*', help='NAME=VALUE filter settings')
-    a = ap.parse_args()
-    settings = dict(p.split('=', 1) for p in a.params)
-    trials = sorted(p for p in a.shared.iterdir() if p.is_dir() and p.name[:2].isdigit())
-    with ProcessPoolExecutor(2) as ex:
-        res = dict(ex.map(run_trial, [(t, settings) for t in trials]))
+    trials, settings = trials_and_settings(parser(__doc__).parse_args())
+    res = dict(map_trials(run_trial, [(t, settings) for t in trials]))
+
     print(f'{"trial":36s} | {"inclination sigma / RMSE, deg":30s} | {"heading 9-D sigma / RMSE":26s} | '
           f'{"heading 6-D (relative) sigma / RMSE":34s}')
     ratios: dict[str, list[float]] = {'incl': [], 'head': [], 'head6': [], 'rate': []}

@@ -17,7 +17,7 @@ Model (``model='auto'``, the default): the soft-iron matrix is kept only where t
 has 6 more unknowns than a sphere and always fits a little better; what it fits in a recording with no soft iron is
 the field's own non-uniformity as the sensor moves through a room (steel in floors and benches), and that
 "calibration" turns the heading. Measured on BROAD's calibrated trials: the ellipsoid lowers the RMS radial residual
-by 2-4 % (ratio 0.96-0.98) and costs 0.4 deg of heading (1.35 -> 1.77 deg RMSE on trial 02); a soft-iron matrix
+by 2-4 % (ratio 0.96-0.98) and costs 0.4 deg of heading (1.36 -> 1.75 deg RMSE on trial 02); a soft-iron matrix
 of a few percent lowers it by 20-50 % (ratio 0.50-0.80). So ``auto`` keeps the ellipsoid where its RMS scatter
 (relative residual x radius: a huge sphere through a flat patch has a small relative one) is below
 :data:`SOFT_IRON_MIN_GAIN` x the offset-only (sphere) fit's, else it writes the offset with ``S`` a multiple of the

@@ -1,0 +1,33 @@
+"""What the BROAD benchmark scripts share: the ``--shared`` / ``NAME=VALUE`` command line, the trial list, and one
+worker per core over the trials."""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable, Iterable
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+#: The shared BROAD trials beside the checkout.
+DEFAULT_SHARED = Path(__file__).resolve().parents[2] / 'shared' / 'data' / 'broad'
+
+
+def parser(doc: str) -> argparse.ArgumentParser:
+    """An argument parser with ``--shared DIR`` and ``NAME=VALUE ...`` filter settings; add more before parsing."""
+    ap = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument('--shared', type=Path, default=DEFAULT_SHARED, help='folder of the BROAD trials')
+    ap.add_argument('params', nargs='*', help='NAME=VALUE filter settings')
+    return ap
+
+
+def trials_and_settings(args: argparse.Namespace) -> tuple[list[Path], dict[str, str]]:
+    """The trial folders (sorted, those named NN_...) in ``args.shared`` and the settings of ``args.params``."""
+    trials = sorted(p for p in args.shared.iterdir() if p.is_dir() and p.name[:2].isdigit())
+    return trials, dict(p.split('=', 1) for p in args.params)
+
+
+def map_trials(fn: Callable[[Any], Any], jobs: Iterable[Any]) -> list[Any]:
+    """``fn`` over ``jobs`` in two worker processes (this machine's cores), results in order."""
+    with ProcessPoolExecutor(2) as ex:
+        return list(ex.map(fn, jobs))
