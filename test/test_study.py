@@ -73,9 +73,10 @@ def test_baseline_on_real_data_answers_every_sample_with_a_plausible_orientation
     np.testing.assert_array_equal(r.quat, r2.quat)
 
 
+@pytest.mark.parametrize('bag', ['faulty_sim', 'faulty_trial'])  # simulated (everywhere) and real (../shared)
 @pytest.mark.parametrize('name', [k for k, _ in FILTERS])
-def test_every_filter_survives_the_faulty_trial(name, faulty_trial):
-    arrays = read_imu_arrays(faulty_trial[0])
+def test_every_filter_survives_the_faulty_trial(name, bag, request):
+    arrays = read_imu_arrays(request.getfixturevalue(bag)[0])
     default = run_batch(make_filter(), arrays.t_s, arrays.gyr, arrays.acc, arrays.mag)
     r = run_batch(make_filter({'filter': name}), arrays.t_s, arrays.gyr, arrays.acc, arrays.mag)
     # The shared sample rules: the same samples are answered by every filter, and never with NaN.
