@@ -32,7 +32,7 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / 'test'))
 
-from conftest import SHARED, copy_bag  # noqa: E402
+from conftest import SHARED, with_mag_distortion  # noqa: E402
 
 from ccf_ros.cli import main as ccf  # noqa: E402
 from ccf_ros.offline.evaluate import evaluate, load_aligned  # noqa: E402
@@ -40,16 +40,6 @@ from ccf_ros.offline.evaluate import evaluate, load_aligned  # noqa: E402
 HARD_IRON_T = np.array([30e-6, -12e-6, 8e-6])
 SOFT_IRON = np.array([[1.07, 0.04, -0.03], [0.04, 0.94, 0.035], [-0.03, 0.035, 1.01]])  # W: true field -> raw
 MAG = '/imu/mag'
-
-
-def distorted(src: Path, dst: Path, w: np.ndarray) -> Path:
-    def edit(topic, msg, t):
-        if topic == MAG:
-            f = msg.magnetic_field
-            f.x, f.y, f.z = w @ np.array([f.x, f.y, f.z]) + HARD_IRON_T
-        return [(msg, t)]
-
-    return copy_bag(src, dst, edit=edit)
 
 
 def scored(bag: Path, tmp: Path, name: str, *files: Path) -> dict[str, float]:
@@ -84,11 +74,11 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         clean = scored(src, tmp, 'clean')
-        for case, w in (('offset', np.eye(3)), ('offset + soft iron', SOFT_IRON)):
+        for case, w in (('offset', None), ('offset + soft iron', SOFT_IRON)):
             tag = case.replace(' ', '').replace('+', '_')
-            bad = distorted(src, tmp / f'distorted_{tag}', w)
+            bad = with_mag_distortion(src, tmp / f'distorted_{tag}', HARD_IRON_T, w, topic=MAG)
             b, s, model = calibrate(bad, tmp / f'{tag}.yaml')
-            s_true = np.linalg.inv(w)
+            s_true = np.linalg.inv(np.eye(3) if w is None else w)
             s_true /= np.cbrt(np.linalg.det(s_true))
             offset_err = float(np.max(np.abs(b - HARD_IRON_T)) * 1e6)
             matrix_err = float(np.max(np.abs(s - s_true)) / np.max(np.abs(s_true)))

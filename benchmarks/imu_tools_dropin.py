@@ -45,7 +45,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / 'test'))
 
 import numpy as np  # noqa: E402
-from conftest import TRIAL, copy_bag  # noqa: E402
+from conftest import TRIAL, with_mag_distortion  # noqa: E402
 
 from ccf_ros.core.metrics import summarize  # noqa: E402
 from ccf_ros.core.quaternion import quat_mul  # noqa: E402
@@ -176,13 +176,7 @@ def simulated_bag(tmp: Path) -> Path:
 
 
 def with_hard_iron(src: Path, dst: Path) -> Path:
-    def edit(topic, msg, t):
-        if topic == MAG:
-            f = msg.magnetic_field
-            f.x, f.y, f.z = f.x + HARD_IRON_T[0], f.y + HARD_IRON_T[1], f.z + HARD_IRON_T[2]
-        return [(msg, t)]
-
-    return copy_bag(src, dst, edit=edit)
+    return with_mag_distortion(src, dst, HARD_IRON_T, topic=MAG)
 
 
 class Table:

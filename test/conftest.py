@@ -80,6 +80,24 @@ def copy_bag(src: Path, dst: Path, *, stop_s: float | None = None, edit=None, st
     return dst
 
 
+def with_mag_distortion(src: Path, dst: Path, offset_t, matrix=None, topic: str = '/imu/mag') -> Path:
+    """Copy of bag ``src`` whose magnetometer reads ``matrix @ m + offset_t`` (T; ``matrix`` None: the identity),
+    as a hard-/soft-iron distortion on the robot would give."""
+    import numpy as np
+
+    b = np.asarray(offset_t, dtype=float)
+    w = None if matrix is None else np.asarray(matrix, dtype=float)
+
+    def edit(t_topic, msg, t):
+        if t_topic == topic:
+            f = msg.magnetic_field
+            v = np.array([f.x, f.y, f.z])
+            f.x, f.y, f.z = (v if w is None else w @ v) + b
+        return [(msg, t)]
+
+    return copy_bag(src, dst, edit=edit)
+
+
 @pytest.fixture(scope='session')
 def short_trial(broad_trial: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The first 60 s of the real trial (rest, then motion)."""

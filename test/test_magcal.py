@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import TRIAL, copy_bag, need_shared
+from conftest import TRIAL, need_shared, with_mag_distortion
 
 from ccf_ros.core.quaternion import quat_conj, quat_from_rotvec, quat_mul, quat_rotate
 from ccf_ros.errors import BagError, CcfError, ParameterError
@@ -345,13 +345,7 @@ def test_a_real_recording_with_an_offset_is_calibrated_and_its_heading_restored(
 
     trial = need_shared(TRIAL)
 
-    def edit(topic, msg, t):
-        if topic == '/imu/mag':
-            f = msg.magnetic_field
-            f.x, f.y, f.z = f.x + OFFSET_T[0], f.y + OFFSET_T[1], f.z + OFFSET_T[2]
-        return [(msg, t)]
-
-    offset_bag = copy_bag(trial, tmp_path / 'offset', edit=edit)
+    offset_bag = with_mag_distortion(trial, tmp_path / 'offset', OFFSET_T)
 
     def heading_deg(bag: Path, *files: Path) -> float:
         out = tmp_path / f'out{len(list(tmp_path.iterdir()))}'
