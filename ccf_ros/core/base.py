@@ -136,16 +136,17 @@ class OrientationFilter(ABC):
     name = ''
     # Slots: attribute access on the per-sample path is measurably faster than through __dict__.
     __slots__ = (
+        '_counts',
         '_frame',
         '_identity_frame',
         '_max_dt',
+        '_n_updated',
         '_q',
         '_t_last',
         '_t_no_acc',
         '_t_no_mag',
         '_use_mag',
         'at_rest',
-        'counts',
         'initialized',
         'mag_disturbed',
         'n_no_acc',
@@ -184,7 +185,9 @@ class OrientationFilter(ABC):
         self.initialized = False
         # Internal body->ENU orientation [w, x, y, z].
         self._q: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
-        self.counts = [0] * len(Status)
+        # Per-status sample counts (see :attr:`counts`); the common one, UPDATED, in its own int: cheaper.
+        self._counts = [0] * len(Status)
+        self._n_updated = 0
         self.n_no_acc = 0
         self.n_no_mag = 0
         #: times the state became non-finite (a bug or absurd input) and the filter re-initialised instead
@@ -245,12 +248,13 @@ class OrientationFilter(ABC):
         s = gx + gy + gz
         # x - x is 0.0 only for finite x: one test catches NaN and Inf in any component.
         if s - s != 0.0:
-            self.counts[_BAD_GYRO] += 1
+            self._counts[_BAD_GYRO] += 1
             return _BAD_GYRO
         dt = t_s - self._t_last
-        # Comparisons with NaN are False: this rejects dt <= 0 and a NaN or infinite stamp (the first dt is inf).
-        if not (dt > 0.0 and -_INF < t_s < _INF):
-            self.counts[_BAD_STAMP] += 1
+        # Comparisons with NaN are False: this rejects dt <= 0 and (t - t is 0.0 only if finite) a NaN or infinite
+        # stamp (the first dt is inf).
+        if not (dt > 0.0 and t_s - t_s == 0.0):
+            self._counts[_BAD_STAMP] += 1
             return _BAD_STAMP
         self._t_last = t_s
         ax, ay, az = acc
@@ -273,7 +277,7 @@ class OrientationFilter(ABC):
             self._step(dt, gx, gy, gz, ax, ay, az, acc_n2, mx, my, mz, mag_n2)
             w = self._q[0]
             if w - w == 0.0:
-                self.counts[_UPDATED] += 1
+                self._n_updated += 1
                 return _UPDATED
             # Non-finite state (should never happen): start over from this sample rather than publish NaN.
             self.n_nonfinite_resets += 1
@@ -286,14 +290,21 @@ class OrientationFilter(ABC):
         if acc_n2 == 0.0:
             if self.initialized:
                 # After a gap without a usable accelerometer: hold, do not integrate across the gap.
-                self.counts[_UPDATED] += 1
+                self._n_updated += 1
                 return _UPDATED
-            self.counts[_NO_ACC_YET] += 1
+            self._counts[_NO_ACC_YET] += 1
             return _NO_ACC_YET
         self._init(ax, ay, az, mx, my, mz, mag_n2 != 0.0)
         self.initialized = True
-        self.counts[status] += 1
+        self._counts[status] += 1
         return status
+
+    @property
+    def counts(self) -> list[int]:
+        """Samples processed so far per :class:`Status` (indexed by its value), since the last :meth:`reset`."""
+        c = list(self._counts)
+        c[_UPDATED] += self._n_updated
+        return c
 
     @property
     def quaternion(self) -> tuple[float, float, float, float]:

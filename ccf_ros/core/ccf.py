@@ -67,6 +67,7 @@ GRAVITY_M_S2 = 9.80665
 _INV_G = 1.0 / GRAVITY_M_S2
 #: Largest NCF heading error the bias integral uses, rad (see _step).
 _HEAD_ERR_MAX = 5.0 * _DEG
+_HEAD_ERR_MAX2 = _HEAD_ERR_MAX * _HEAD_ERR_MAX
 #: The new-field timer loses this many seconds per second of samples that disagree with the candidate.
 _LEAK = 3.0
 
@@ -180,7 +181,7 @@ class _Coefficients:
     keep_incl: float
     keep_head: float
     keep_bias_rest: float
-    u_rest: float
+    u_rest_gain: float
     u_walk: float
     sigma_init: float
     var_arw: float
@@ -213,7 +214,7 @@ class _Coefficients:
             keep_incl=math.exp(-2.0 * dt / (p.tau_acc_s + p.tau_acc_lp_s)),
             keep_head=math.exp(-2.0 * dt / p.tau_mag_s),
             keep_bias_rest=math.exp(-dt / p.rest_tau_s),
-            u_rest=(p.bias_sigma_rest_rad_s / p.bias_sigma_init_rad_s) ** 2,
+            u_rest_gain=(p.bias_sigma_rest_rad_s / p.bias_sigma_init_rad_s) ** 2 * -math.expm1(-dt / p.rest_tau_s),
             u_walk=(p.bias_walk_rad_s_sqrt_s / p.bias_sigma_init_rad_s) ** 2 * dt,
             sigma_init=p.bias_sigma_init_rad_s,
             var_arw=p.gyro_arw_rad_sqrt_s**2 * dt,
@@ -248,9 +249,9 @@ class QuaternionCcf(OrientationFilter):
 
     name = 'ccf'
     __slots__ = (
-        '_bias', '_coef', '_dn', '_g_lp', '_gyro_lp', '_heading_known', '_mag_bounds', '_mag_candidate',
-        '_mag_have_ref', '_mag_learn_n', '_mag_learn_s', '_mag_new_s', '_mag_ref', '_mag_rejected_t', '_n_init',
-        '_rest_s', '_u_bias', '_var_head', '_var_incl',
+        '_coef', '_gyro_lp', '_heading_known', '_mag_bounds', '_mag_candidate', '_mag_have_ref', '_mag_learn_n',
+        '_mag_learn_s', '_mag_new_s', '_mag_ref', '_mag_rejected_t', '_n_init', '_rest_s', '_u_bias', '_var_head',
+        '_var_incl', '_x',
     )
     params: CcfParams
 
@@ -258,10 +259,10 @@ class QuaternionCcf(OrientationFilter):
         super().__init__(params if params is not None else CcfParams())
 
     def _reset_state(self) -> None:
-        self._bias = (0.0, 0.0, 0.0)
+        # The per-sample state in one tuple (one load and one store per sample): the gyro bias b (rad/s, body), the
+        # filtered gravity g_lp (m/s², body) and the NCF's offset dn (rad, world), 3 values each.
+        self._x = (0.0, 0.0, 0.0, 0.0, 0.0, GRAVITY_M_S2, 0.0, 0.0, 0.0)
         self._coef = _Coefficients.of(self.params, 0.0)
-        self._g_lp = (0.0, 0.0, GRAVITY_M_S2)
-        self._dn = (0.0, 0.0, 0.0)
         self._gyro_lp = (0.0, 0.0, 0.0)
         self._rest_s = 0.0
         self._n_init = 0
@@ -346,9 +347,9 @@ class QuaternionCcf(OrientationFilter):
                 self._var_head = 0.0 if not p.use_mag else (math.pi / 2) ** 2
                 self._heading_known = False
         self._q = q
-        self._g_lp = (ax, ay, az)
-        self._dn = (0.0, 0.0, 0.0)
-        self._gyro_lp = self._bias
+        bias = self._x[:3]
+        self._x = (*bias, ax, ay, az, 0.0, 0.0, 0.0)
+        self._gyro_lp = bias
         self._rest_s = 0.0
         self.at_rest = False
         self._var_incl = 0.0
@@ -378,16 +379,16 @@ class QuaternionCcf(OrientationFilter):
         if not c.dt_lo <= dt <= c.dt_hi:
             c = self._coef = _Coefficients.of(self.params, dt)
         qw, qx, qy, qz = self._q
-        bx, by, bz = self._bias
-        fx, fy, fz = self._g_lp
-        dnx, dny, dnz = self._dn
+        bx, by, bz, fx, fy, fz, dnx, dny, dnz = self._x
         # Rows of the body->world rotation matrix: world east (r0), north (r1) and up (v) in body coordinates.
-        xx, yy, zz = qx * qx, qy * qy, qz * qz
-        xy, xz, yz = qx * qy, qx * qz, qy * qz
-        wx, wy, wz = qw * qx, qw * qy, qw * qz
-        r0x, r0y, r0z = 1.0 - 2.0 * (yy + zz), 2.0 * (xy - wz), 2.0 * (xz + wy)
-        r1x, r1y, r1z = 2.0 * (xy + wz), 1.0 - 2.0 * (xx + zz), 2.0 * (yz - wx)
-        vx, vy, vz = 2.0 * (xz - wy), 2.0 * (yz + wx), 1.0 - 2.0 * (xx + yy)
+        # (Twice the products: x2 = 2 qx etc. saves the factor 2 of every matrix element.)
+        x2, y2, z2 = qx + qx, qy + qy, qz + qz
+        xx, yy, zz = qx * x2, qy * y2, qz * z2
+        xy, xz, yz = qx * y2, qx * z2, qy * z2
+        wx, wy, wz = qw * x2, qw * y2, qw * z2
+        r0x, r0y, r0z = 1.0 - (yy + zz), xy - wz, xz + wy
+        r1x, r1y, r1z = xy + wz, 1.0 - (xx + zz), yz - wx
+        vx, vy, vz = xz - wy, yz + wx, 1.0 - (xx + yy)
         # LCF tilt error e: rotation (rad, body) taking the filtered gravity direction onto the estimated up;
         # divided by standard gravity, not |g_lp|, so the correction stays linear in the specific force.
         ig = _INV_G
@@ -436,7 +437,7 @@ class QuaternionCcf(OrientationFilter):
                     hn -= _TWO_PI
                 elif hn < -_PI:
                     hn += _TWO_PI
-                hi = hn if -_HEAD_ERR_MAX < hn < _HEAD_ERR_MAX else 0.0
+                hi = hn if hn * hn < _HEAD_ERR_MAX2 else 0.0
                 nx += hi * vx
                 ny += hi * vy
                 nz += hi * vz
@@ -462,11 +463,13 @@ class QuaternionCcf(OrientationFilter):
         # bias variance u relative to bias_sigma_init² (Kalman-like): a rest makes u small, so a precise rest estimate
         # is refined only slowly while moving; u grows back as that knowledge ages (bias random walk).
         u = self._u_bias
-        # Not during the start-up (ni): the errors then are the initial attitude's, not the bias's.
-        k = 0.0 if ni else c.k_int * u
-        bx -= k * nx
-        by -= k * ny
-        bz -= k * nz
+        # Not during the start-up (ni): the errors then are the initial attitude's, not the bias's; not at rest,
+        # where the low-passed gyro below is far more informative.
+        if not (ni or self.at_rest):
+            k = c.k_int * u
+            bx -= k * nx
+            by -= k * ny
+            bz -= k * nz
         if c.rest_bias:
             # Rest: the accelerometer within rest_acc_m_s2 of the filtered gravity (tested first: it fails first
             # while moving, and then nothing else is needed), and the gyro within rest_gyro_rad_s of its low-pass.
@@ -489,18 +492,24 @@ class QuaternionCcf(OrientationFilter):
                 gly += k * dgy
                 glz += k * dgz
                 self._gyro_lp = (glx, gly, glz)
-                m = c.bias_max
+                m2 = c.bias_max2
                 # The low-passed gyro must be a believable bias: within the clamp, per axis as the clamp is.
-                if dgx * dgx + dgy * dgy + dgz * dgz < c.rest_gyro2 and -m < glx < m and -m < gly < m and -m < glz < m:
+                if (
+                    dgx * dgx + dgy * dgy + dgz * dgz < c.rest_gyro2
+                    and glx * glx < m2
+                    and gly * gly < m2
+                    and glz * glz < m2
+                ):
                     # 1e-12 s keeps the timer non-zero (the low-pass continues) from the first sample on.
-                    self._rest_s += dt + 1e-12
-                    if self._rest_s >= c.rest_min_s:
+                    rest_s = self._rest_s = self._rest_s + dt + 1e-12
+                    if rest_s >= c.rest_min_s:
                         # At rest the low-passed gyro *is* the bias: pull the estimate there.
                         self.at_rest = True
                         bx += k * (glx - bx)
                         by += k * (gly - by)
                         bz += k * (glz - bz)
-                        self._u_bias = u = c.u_rest + (u - c.u_rest) * c.keep_bias_rest
+                        # u relaxes to u_rest: u_rest + (u - u_rest) keep.
+                        self._u_bias = u = u * c.keep_bias_rest + c.u_rest_gain
                 elif self._rest_s:
                     self._rest_s = 0.0
                     self.at_rest = False
@@ -516,7 +525,6 @@ class QuaternionCcf(OrientationFilter):
             bx = max(-m, min(m, bx))
             by = max(-m, min(m, by))
             bz = max(-m, min(m, bz))
-        self._bias = (bx, by, bz)
         # LCF: integrate the bias-corrected rate plus the blend correction: q <- q ⊗ exp(h).
         rx = (gx - bx) * dt
         ry = (gy - by) * dt
@@ -526,53 +534,59 @@ class QuaternionCcf(OrientationFilter):
         hz = 0.5 * (rz + cz)
         n2 = hx * hx + hy * hy + hz * hz
         if n2 < 1e-4:
-            # Taylor series of cos(x) and sin(x)/x; the first omitted terms are below 2e-15 for |x| < 0.01.
-            cw = 1.0 - n2 * (0.5 - n2 * (1.0 / 24.0))
-            s = 1.0 - n2 * (1.0 / 6.0 - n2 * (1.0 / 120.0))
+            # Taylor series of cos(x) and sin(x)/x to x²: for |x| < 0.01 the omitted terms (< 5e-10) turn the step
+            # by < 1e-11 rad too far and leave its norm short by < 5e-10, which the next step's renormalisation
+            # removes.
+            cw = 1.0 - 0.5 * n2
+            s = 1.0 - n2 * (1.0 / 6.0)
         else:
             n = sqrt(n2)
             cw = cos(n)
             s = sin(n) / n
+        # The gyro's share of the step alone, p (g_lp follows the gyro only, not the LCF correction c, ~1e-5 rad).
+        # Its cos is taken as the full step's cw: off by ~|r||c| (~1e-7), far below the pull of the blend below.
+        s2 = 0.5 * s
+        px = s2 * rx
+        py = s2 * ry
+        pz = s2 * rz
+        # q's norm is 1 up to rounding (a product of unit quaternions): its first-order inverse 1.5 - 0.5 |q|²
+        # (exact to ~1e-30 there, no square root), folded into exp(h), renormalises the product.
+        inv = 1.5 - 0.5 * qw * qw - 0.25 * (xx + yy + zz)
+        hw = cw * inv
+        s *= inv
         hx *= s
         hy *= s
         hz *= s
-        w = qw * cw - qx * hx - qy * hy - qz * hz
-        x = qw * hx + qx * cw + qy * hz - qz * hy
-        y = qw * hy - qx * hz + qy * cw + qz * hx
-        z = qw * hz + qx * hy - qy * hx + qz * cw
-        # Both factors are unit quaternions, so the norm is 1 up to rounding: the first-order renormalisation
-        # 1/sqrt(n) = 1.5 - 0.5 n is exact to ~1e-30 there and needs no square root.
-        inv = 1.5 - 0.5 * (w * w + x * x + y * y + z * z)
-        self._q = (w * inv, x * inv, y * inv, z * inv)
-        # g_lp into the new body frame, v' = R(h)^T v = v - 2 cw (h x v) + 2 h x (h x v), then the LCF correction's
-        # share of the step undone (first order; c is ~1e-5 rad): g_lp follows the gyro only.
-        tx = 2.0 * (fy * hz - fz * hy)
-        ty = 2.0 * (fz * hx - fx * hz)
-        tz = 2.0 * (fx * hy - fy * hx)
-        gx2 = fx + cw * tx + (ty * hz - tz * hy)
-        gy2 = fy + cw * ty + (tz * hx - tx * hz)
-        gz2 = fz + cw * tz + (tx * hy - ty * hx)
-        fx = gx2 + (cy * gz2 - cz * gy2)
-        fy = gy2 + (cz * gx2 - cx * gz2)
-        fz = gz2 + (cx * gy2 - cy * gx2)
+        self._q = (
+            qw * hw - qx * hx - qy * hy - qz * hz,
+            qw * hx + qx * hw + qy * hz - qz * hy,
+            qw * hy - qx * hz + qy * hw + qz * hx,
+            qw * hz + qx * hy - qy * hx + qz * hw,
+        )
+        # g_lp into the new body frame, v' = R(p)^T v = v - 2 cw (p x v) + 2 p x (p x v).
+        tx = 2.0 * (fy * pz - fz * py)
+        ty = 2.0 * (fz * px - fx * pz)
+        tz = 2.0 * (fx * py - fy * px)
+        fx += cw * tx + (ty * pz - tz * py)
+        fy += cw * ty + (tz * px - tx * pz)
+        fz += cw * tz + (tx * py - ty * px)
         if acc_n2:
             # The sample is a mean over the step (gravity in the frame of mid-interval): carry it the half step to
-            # the step's end, v' = v - (r/2) x v, then blend.
-            k = k_lp
-            fx += k * (ax - 0.5 * (ry * az - rz * ay) - fx)
-            fy += k * (ay - 0.5 * (rz * ax - rx * az) - fy)
-            fz += k * (az - 0.5 * (rx * ay - ry * ax) - fz)
-        self._g_lp = (fx, fy, fz)
+            # the step's end, v' = v - p x v (p = r/2 to ~1e-5), then blend.
+            fx += k_lp * (ax - (py * az - pz * ay) - fx)
+            fy += k_lp * (ay - (pz * ax - px * az) - fy)
+            fz += k_lp * (az - (px * ay - py * ax) - fz)
         # NCF offset (world frame, unchanged by the common gyro step): dn += R (c_ncf - c_lcf); its vertical part is
         # the NCF's own heading (moved by the magnetometer only).
         k = c.k_ncf
         ux = k * nx - cx
         uy = k * ny - cy
         uz = k * nz - cz
-        self._dn = (
+        self._x = (
+            bx, by, bz, fx, fy, fz,
             dnx + r0x * ux + r0y * uy + r0z * uz,
             dny + r1x * ux + r1y * uy + r1z * uz,
-            dnz + c.k_ncf * hn - kd,
+            dnz + k * hn - kd,
         )
 
     def _mag_rejected(self, dt: float, mag_n2: float, norm: float, sin_dip: float) -> bool:
@@ -633,7 +647,8 @@ class QuaternionCcf(OrientationFilter):
     @property
     def gyro_bias(self) -> tuple[float, float, float]:
         """Gyroscope bias estimate, rad/s, body frame."""
-        return self._bias
+        b = self._x
+        return (b[0], b[1], b[2])
 
     @property
     def gyro_bias_sigma_rad_s(self) -> float:
@@ -646,7 +661,7 @@ class QuaternionCcf(OrientationFilter):
     def ncf_quaternion(self) -> Quat:
         """The NCF stage's own attitude ``exp(dn) ⊗ q`` (internal ENU frame), ``(w, x, y, z)``."""
         qw, qx, qy, qz = self._q
-        dx, dy, dz = (0.5 * v for v in self._dn)
+        dx, dy, dz = (0.5 * v for v in self._x[6:])
         # (1, dx, dy, dz) ⊗ q, normalised: first order in the small world-frame rotation dn.
         w = qw - dx * qx - dy * qy - dz * qz
         x = qx + dx * qw + dy * qz - dz * qy
