@@ -564,3 +564,23 @@ def test_bias_uncertainty_schedule_rest_makes_it_small_motion_lets_it_grow():
     assert np.all(np.diff(sigma[end_rest + 200:]) >= 0.0)
     # ... and the bias learnt at rest stays put while moving (the NCF's gain is scaled by the variance).
     assert np.degrees(np.abs(f.gyro_bias - d.bias[-1])).max() < 0.017  # °/s, measured 0.014
+
+
+def test_a_longer_rest_min_s_set_live_ends_the_rest_until_the_timer_reaches_it():
+    """set_params with a longer rest_min_s while at rest: not at rest (the NCF integral and the bias random walk run
+    again) until the rest has lasted the new minimum."""
+    rate = 100.0
+    f = QuaternionCcf(CcfParams(use_mag=False, rest_min_s=1.0))
+    gyr, acc = (0.001, -0.002, 0.0015), (0.0, 0.0, 9.80665)
+    k = 0
+    for k in range(300):  # 3 s at rest
+        f.update(k / rate, gyr, acc)
+    assert f.at_rest
+    f.set_params(dataclasses.replace(f.params, rest_min_s=10.0))
+    assert not f.at_rest
+    first = None
+    for j in range(k + 1, k + 1 + 1000):  # 10 s more
+        f.update(j / rate, gyr, acc)
+        if first is None and f.at_rest:
+            first = j / rate
+    assert first is not None and 9.9 <= first <= 10.1, first  # the rest began at 0 s

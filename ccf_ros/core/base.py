@@ -301,7 +301,8 @@ class OrientationFilter(ABC):
 
     @property
     def counts(self) -> list[int]:
-        """Samples processed so far per :class:`Status` (indexed by its value), since the last :meth:`reset`."""
+        """Samples processed so far per :class:`Status` (indexed by its value), since the last :meth:`reset`; a new
+        list on every read (read-only)."""
         c = list(self._counts)
         c[_UPDATED] += self._n_updated
         return c

@@ -324,6 +324,9 @@ class QuaternionCcf(OrientationFilter):
         if not self.params.rest_bias:
             self.at_rest = False
             self._rest_s = 0.0
+        elif self._rest_s < self.params.rest_min_s:
+            # A longer rest_min_s: not at rest until the timer reaches it (the NCF integral runs meanwhile).
+            self.at_rest = False
         if self._mag_have_ref and self._mag_learn_s <= 0.0:
             self._mag_bounds = self._bounds(*self._mag_ref)
 
@@ -544,13 +547,14 @@ class QuaternionCcf(OrientationFilter):
             cw = cos(n)
             s = sin(n) / n
         # The gyro's share of the step alone, p (g_lp follows the gyro only, not the LCF correction c, ~1e-5 rad).
-        # Its cos is taken as the full step's cw: off by ~|r||c| (~1e-7), far below the pull of the blend below.
+        # Its cos is taken as the full step's cw, which leaves the rotation orthogonal to second order in |c| (and
+        # more exact than rotating by h and undoing c, which left ~|r x c| / 2).
         s2 = 0.5 * s
         px = s2 * rx
         py = s2 * ry
         pz = s2 * rz
-        # q's norm is 1 up to rounding (a product of unit quaternions): its first-order inverse 1.5 - 0.5 |q|²
-        # (exact to ~1e-30 there, no square root), folded into exp(h), renormalises the product.
+        # q's norm is within one step's series deficit (< 5e-10, below) of 1: its first-order inverse 1.5 - 0.5 |q|²
+        # (exact to ~1e-19 there, no square root), folded into exp(h), renormalises the product.
         inv = 1.5 - 0.5 * qw * qw - 0.25 * (xx + yy + zz)
         hw = cw * inv
         s *= inv
