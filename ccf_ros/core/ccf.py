@@ -537,11 +537,11 @@ class QuaternionCcf(OrientationFilter):
         hz = 0.5 * (rz + cz)
         n2 = hx * hx + hy * hy + hz * hz
         if n2 < 1e-4:
-            # Taylor series of cos(x) and sin(x)/x to x²: for |x| < 0.01 the omitted terms (< 5e-10) turn the step
-            # by < 1e-11 rad too far and leave its norm short by < 5e-10, which the next step's renormalisation
-            # removes.
-            cw = 1.0 - 0.5 * n2
-            s = 1.0 - n2 * (1.0 / 6.0)
+            # Taylor series of cos(x) and sin(x)/x to x⁴; the first omitted terms are below 2e-15 for |x| < 0.01.
+            # (Not shorter: the published quaternion's norm is exp(h)'s, and a deficit of even 1e-10 reads as a 1e-3°
+            # rotation to anyone who takes the angle between two quaternions as 2 acos|q1·q2|.)
+            cw = 1.0 - n2 * (0.5 - n2 * (1.0 / 24.0))
+            s = 1.0 - n2 * (1.0 / 6.0 - n2 * (1.0 / 120.0))
         else:
             n = sqrt(n2)
             cw = cos(n)
@@ -553,8 +553,8 @@ class QuaternionCcf(OrientationFilter):
         px = s2 * rx
         py = s2 * ry
         pz = s2 * rz
-        # q's norm is within one step's series deficit (< 5e-10, below) of 1: its first-order inverse 1.5 - 0.5 |q|²
-        # (exact to ~1e-19 there, no square root), folded into exp(h), renormalises the product.
+        # q's norm is 1 to rounding (a product of unit quaternions): its first-order inverse 1.5 - 0.5 |q|² (exact
+        # to ~1e-30 there, no square root), folded into exp(h), renormalises the product.
         inv = 1.5 - 0.5 * qw * qw - 0.25 * (xx + yy + zz)
         hw = cw * inv
         s *= inv
