@@ -16,7 +16,7 @@ import numpy as np
 from _trials import map_trials, parser, trials_and_settings
 
 from ccf_ros.core import run_batch
-from ccf_ros.core.quaternion import quat_conj, quat_mul
+from ccf_ros.core.quaternion import quat_conj, quat_mul, quat_to_rotvec
 from ccf_ros.offline.bagio import read_bools, read_imu_arrays, read_orientations
 from ccf_ros.offline.evaluate import align, mask_at
 from ccf_ros.settings import build
@@ -36,10 +36,7 @@ def tilt_vectors(q_est: np.ndarray, q_ref: np.ndarray) -> np.ndarray:
     twist = e[:, [0, 3]] / np.linalg.norm(e[:, [0, 3]], axis=1, keepdims=True)
     t = np.zeros_like(e)
     t[:, 0], t[:, 3] = twist[:, 0], twist[:, 1]
-    swing = quat_mul(e, quat_conj(t))
-    n = np.linalg.norm(swing[:, 1:], axis=1)
-    angle = 2.0 * np.arctan2(n, swing[:, 0])
-    return np.degrees(swing[:, 1:3] * (angle / np.maximum(n, 1e-15))[:, None])
+    return np.degrees(quat_to_rotvec(quat_mul(e, quat_conj(t)))[:, :2])
 
 
 def run_trial(args: tuple) -> tuple[str, dict[str, tuple[float, ...]]]:

@@ -584,3 +584,15 @@ def test_a_longer_rest_min_s_set_live_ends_the_rest_until_the_timer_reaches_it()
         if first is None and f.at_rest:
             first = j / rate
     assert first is not None and 9.9 <= first <= 10.1, first  # the rest began at 0 s
+
+
+def test_rotation_vectors_invert_quat_from_rotvec_either_sign():
+    from ccf_ros.core.quaternion import quat_from_rotvec, quat_to_rotvec
+
+    rng = np.random.default_rng(3)
+    r = rng.standard_normal((200, 3))
+    r *= (rng.uniform(0.0, 0.999 * np.pi, 200) / np.linalg.norm(r, axis=1))[:, None]
+    r[0] = 0.0  # the identity: the limit, not 0/0
+    q = quat_from_rotvec(r)
+    np.testing.assert_allclose(quat_to_rotvec(q), r, atol=1e-12)
+    np.testing.assert_allclose(quat_to_rotvec(-q), r, atol=1e-12)  # -q is the same rotation

@@ -92,6 +92,18 @@ def quat_from_rotvec(r: ArrayLike) -> FloatArray:
     return np.concatenate((np.cos(half), k * r), axis=-1)
 
 
+def quat_to_rotvec(q: ArrayLike) -> FloatArray:
+    """Rotation vectors (..., 3) of quaternions ``q`` (..., 4), angle in ``[0, pi]`` rad (the short way round)."""
+    q = np.asarray(q, dtype=float)
+    q = q * np.where(q[..., :1] < 0.0, -1.0, 1.0)
+    v = np.linalg.norm(q[..., 1:], axis=-1)
+    angle = 2.0 * np.arctan2(v, q[..., 0])
+    # angle / v with its limit 2 (a unit quaternion's w is then 1) at v = 0
+    scale = np.where(v > 1e-12, angle / np.maximum(v, 1e-12), 2.0)
+    out: FloatArray = q[..., 1:] * scale[..., None]
+    return out
+
+
 def euler_to_quat(roll: ArrayLike, pitch: ArrayLike, yaw: ArrayLike) -> FloatArray:
     """ZYX Euler angles (rad) -> quaternions ``(..., 4)``."""
     cr, sr = np.cos(np.multiply(roll, 0.5)), np.sin(np.multiply(roll, 0.5))

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from ..core.quaternion import quat_conj, quat_mul
+from ..core.quaternion import quat_conj, quat_mul, quat_to_rotvec
 from ..errors import CcfError
 from .datasets import Dataset, fill_missing, run_filter, total_error_rad
 from .experiments import euler_ccf_settings
@@ -39,12 +39,7 @@ def _scored_rows(ds: Dataset) -> np.ndarray:
 def _rotation_error(q: np.ndarray, q_ref: np.ndarray) -> np.ndarray:
     """``(M, 3)`` rotation vectors (rad, world frame) of ``q ⊗ q_ref⁻¹``; a missing estimate counts as pi about x."""
     filled, bad = fill_missing(q)
-    e = quat_mul(filled, quat_conj(q_ref))
-    e *= np.where(e[:, :1] < 0.0, -1.0, 1.0)
-    v = np.linalg.norm(e[:, 1:], axis=1)
-    angle = 2.0 * np.arctan2(v, e[:, 0])
-    scale = np.where(v > 1e-12, angle / np.maximum(v, 1e-12), 2.0)
-    out = e[:, 1:] * scale[:, None]
+    out = quat_to_rotvec(quat_mul(filled, quat_conj(q_ref)))
     out[bad] = (math.pi, 0.0, 0.0)
     return out
 
