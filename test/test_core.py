@@ -562,8 +562,16 @@ def test_bias_uncertainty_schedule_rest_makes_it_small_motion_lets_it_grow():
     grow = np.degrees(p.bias_walk_rad_s_sqrt_s) ** 2 * (t[-1] - t[end_rest])
     assert sigma[-1] ** 2 == pytest.approx(sigma[end_rest] ** 2 + grow, rel=0.05)
     assert np.all(np.diff(sigma[end_rest + 200:]) >= 0.0)
-    # ... and the bias learnt at rest stays put while moving (the NCF's gain is scaled by the variance).
-    assert np.degrees(np.abs(f.gyro_bias - d.bias[-1])).max() < 0.017  # °/s, measured 0.014
+    # ... and the bias learnt at rest stays put while moving (the NCF's gain is scaled by the variance): RMS error
+    # per axis over five noise seeds (one seed alone is a lottery: 0.008-0.035 °/s).
+    err = [np.degrees(np.subtract(f.gyro_bias, d.bias[-1]))]
+    for seed in range(8, 12):
+        d = generate(65.0, 200.0, seed=seed, rest_s=10.0, bias_walk_rad_s_sqrt_s=0.0)
+        f = QuaternionCcf(p)
+        for k in range(len(d.t_s)):
+            f.update(float(d.t_s[k]), tuple(d.gyr[k]), tuple(d.acc[k]), tuple(d.mag[k]))
+        err.append(np.degrees(np.subtract(f.gyro_bias, d.bias[-1])))
+    assert np.sqrt(np.mean(np.square(err))) < 0.018  # °/s, measured 0.0152
 
 
 def test_a_longer_rest_min_s_set_live_ends_the_rest_until_the_timer_reaches_it():
