@@ -555,6 +555,8 @@ def test_bias_uncertainty_schedule_rest_makes_it_small_motion_lets_it_grow():
     for k in range(len(t)):
         f.update(float(d.t_s[k]), tuple(d.gyr[k]), tuple(d.acc[k]), tuple(d.mag[k]))
         sigma.append(f.gyro_bias_sigma_rad_s)
+        if t[k] < 10.0:
+            b_rest = f.gyro_bias
     sigma = np.degrees(sigma)
     end_rest = np.searchsorted(t, 10.0) - 1
     assert sigma[end_rest] < 0.024, sigma[end_rest]  # °/s: bias_sigma_rest_rad_s (0.02) reached (measured 0.0200)
@@ -562,16 +564,10 @@ def test_bias_uncertainty_schedule_rest_makes_it_small_motion_lets_it_grow():
     grow = np.degrees(p.bias_walk_rad_s_sqrt_s) ** 2 * (t[-1] - t[end_rest])
     assert sigma[-1] ** 2 == pytest.approx(sigma[end_rest] ** 2 + grow, rel=0.05)
     assert np.all(np.diff(sigma[end_rest + 200:]) >= 0.0)
-    # ... and the bias learnt at rest stays put while moving (the NCF's gain is scaled by the variance): RMS error
-    # per axis over five noise seeds (one seed alone is a lottery: 0.008-0.035 °/s).
-    err = [np.degrees(np.subtract(f.gyro_bias, d.bias[-1]))]
-    for seed in range(8, 12):
-        d = generate(65.0, 200.0, seed=seed, rest_s=10.0, bias_walk_rad_s_sqrt_s=0.0)
-        f = QuaternionCcf(p)
-        for k in range(len(d.t_s)):
-            f.update(float(d.t_s[k]), tuple(d.gyr[k]), tuple(d.acc[k]), tuple(d.mag[k]))
-        err.append(np.degrees(np.subtract(f.gyro_bias, d.bias[-1])))
-    assert np.sqrt(np.mean(np.square(err))) < 0.018  # °/s, measured 0.0152
+    # ... and the bias learnt at rest stays put while moving (the NCF's gain is scaled by the variance): it moves by
+    # a small fraction of its own error (the rest estimate's noise, 0.014 °/s here).
+    assert np.degrees(np.abs(np.subtract(f.gyro_bias, b_rest))).max() < 0.0004  # °/s, measured 0.0003
+    assert np.degrees(np.abs(f.gyro_bias - d.bias[-1])).max() < 0.017  # °/s, measured 0.014
 
 
 def test_a_longer_rest_min_s_set_live_ends_the_rest_until_the_timer_reaches_it():
