@@ -14,16 +14,22 @@ DEFAULT_SHARED = Path(__file__).resolve().parents[2] / 'shared' / 'data' / 'broa
 
 
 def parser(doc: str) -> argparse.ArgumentParser:
-    """An argument parser with ``--shared DIR`` and ``NAME=VALUE ...`` filter settings; add more before parsing."""
+    """An argument parser with ``--shared DIR``, ``--trials NN,NN`` and ``NAME=VALUE ...`` filter settings; add more
+    before parsing."""
     ap = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument('--shared', type=Path, default=DEFAULT_SHARED, help='folder of the BROAD trials')
+    ap.add_argument('--trials', default='', help='comma-separated trial numbers, e.g. 02,11 (default: all)')
     ap.add_argument('params', nargs='*', help='NAME=VALUE filter settings')
     return ap
 
 
 def trials_and_settings(args: argparse.Namespace) -> tuple[list[Path], dict[str, str]]:
-    """The trial folders (sorted, those named NN_...) in ``args.shared`` and the settings of ``args.params``."""
+    """The trial folders (sorted, those named NN_..., only the numbers of ``args.trials`` if given) in ``args.shared``
+    and the settings of ``args.params``."""
     trials = sorted(p for p in args.shared.iterdir() if p.is_dir() and p.name[:2].isdigit())
+    if args.trials:
+        keep = set(args.trials.split(','))
+        trials = [t for t in trials if t.name[:2] in keep]
     return trials, dict(p.split('=', 1) for p in args.params)
 
 

@@ -86,11 +86,8 @@ def run_trial(args: tuple[Path, dict[str, str]]) -> tuple[str, tuple]:
 
 def main() -> None:
     ap = parser(__doc__)
-    ap.add_argument('--trials', default='', help='comma-separated trial numbers (default: all)')
     a = ap.parse_args()
     trials, settings = trials_and_settings(a)
-    if a.trials:
-        trials = [t for t in trials if t.name[:2] in a.trials.split(',')]
     results = map_trials(run_trial, [(t, settings) for t in trials])
 
     def v(x: np.ndarray) -> str:

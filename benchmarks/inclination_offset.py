@@ -62,11 +62,8 @@ def run_trial(args: tuple) -> tuple[str, dict[str, tuple[float, ...]]]:
 
 def main() -> None:
     ap = parser(__doc__)
-    ap.add_argument('--trials', default='', help='comma-separated trial numbers (default: all)')
     a = ap.parse_args()
     trials, settings = trials_and_settings(a)
-    if a.trials:
-        trials = [t for t in trials if t.name[:2] in a.trials.split(',')]
     results = map_trials(run_trial, [(t, settings) for t in trials])
     for name in VARIANTS:
         print(f'\n== {name}: inclination RMSE while moving = its mean (world tilt, deg east / north) + RMS about it')

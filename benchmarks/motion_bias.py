@@ -121,13 +121,9 @@ def run_trial(args: tuple[Path, float, dict[str, str]]) -> tuple[str, dict[str, 
 
 def main() -> None:
     ap: argparse.ArgumentParser = parser(__doc__)
-    ap.add_argument('--trials', default='', help='comma-separated trial numbers (default: all)')
     ap.add_argument('--window', type=float, default=20.0, help='oracle: moving-mean window of the gyro error, s')
     args = ap.parse_args()
     trials, settings = trials_and_settings(args)
-    if args.trials:
-        keep = set(args.trials.split(','))
-        trials = [t for t in trials if t.name[:2] in keep]
     res = map_trials(run_trial, [(t, args.window, settings) for t in trials])
 
     def v(x: np.ndarray) -> str:
