@@ -17,7 +17,7 @@ import numpy as np
 from _trials import map_trials, parser, trials_and_settings
 
 from ccf_ros.core import run_batch
-from ccf_ros.core.metrics import fit_heading_offset, summarize
+from ccf_ros.core.metrics import fitted_total_rmse_deg, summarize
 from ccf_ros.offline.bagio import read_bools, read_imu_arrays, read_orientations
 from ccf_ros.offline.evaluate import align, mask_at
 from ccf_ros.settings import build
@@ -60,12 +60,7 @@ def run_trial(args: tuple[Path, list[int], dict[str, str], bool]) -> tuple[str, 
         q = align(t[r.answered], r.quat[r.answered], t_ref, q_ref)
         s = summarize(q, q_ref, mask)
         nan_out = int((~np.isfinite(r.quat).all(axis=1)).sum())
-        fitted = float('nan')
-        if not use_mag:
-            sel = mask & np.all(np.isfinite(q_ref), axis=1) & np.all(np.isfinite(q), axis=1)
-            q_fit = q_ref.copy()
-            q_fit[sel] = fit_heading_offset(q[sel], q_ref[sel])
-            fitted = summarize(q, q_fit, mask).total_rmse_deg
+        fitted = float('nan') if use_mag else fitted_total_rmse_deg(q, q_ref, mask)
         out[key] = (s.total_rmse_deg, s.heading_rmse_deg, s.inclination_rmse_deg, nan_out, fitted)
     return trial.name, out
 

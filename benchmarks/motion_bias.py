@@ -26,7 +26,7 @@ import numpy as np
 from _trials import map_trials, parser, trials_and_settings
 
 from ccf_ros.core import run_batch
-from ccf_ros.core.metrics import fit_heading_offset, summarize
+from ccf_ros.core.metrics import fitted_total_rmse_deg, summarize
 from ccf_ros.core.quaternion import quat_conj, quat_mul, quat_to_rotvec
 from ccf_ros.offline.bagio import read_bools, read_imu_arrays, read_orientations
 from ccf_ros.offline.evaluate import align, mask_at
@@ -80,11 +80,7 @@ def scores(filt, t: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag, t_ref, q_
     """(inclination RMSE, total RMSE with one heading offset fitted), degrees, and the batch result."""
     r = run_batch(filt, t, gyr, acc, mag)
     q = align(t[r.answered], r.quat[r.answered], t_ref, q_ref)
-    s = summarize(q, q_ref, mask)
-    sel = mask & np.all(np.isfinite(q_ref), axis=1) & np.all(np.isfinite(q), axis=1)
-    q_fit = q_ref.copy()
-    q_fit[sel] = fit_heading_offset(q[sel], q_ref[sel])
-    return s.inclination_rmse_deg, summarize(q, q_fit, mask).total_rmse_deg, r
+    return summarize(q, q_ref, mask).inclination_rmse_deg, fitted_total_rmse_deg(q, q_ref, mask), r
 
 
 def run_trial(args: tuple[Path, float, dict[str, str]]) -> tuple[str, dict[str, Any]]:

@@ -600,3 +600,26 @@ def test_rotation_vectors_invert_quat_from_rotvec_either_sign():
     q = quat_from_rotvec(r)
     np.testing.assert_allclose(quat_to_rotvec(q), r, atol=1e-12)
     np.testing.assert_allclose(quat_to_rotvec(-q), r, atol=1e-12)  # -q is the same rotation
+
+
+def test_fitted_total_removes_a_constant_heading_offset_and_nothing_else():
+    """The 6-D score: a constant turn about up is fitted away, a tilt error is not."""
+    from ccf_ros.core.metrics import fitted_total_rmse_deg, summarize
+    from ccf_ros.core.quaternion import euler_to_quat
+
+    rng = np.random.default_rng(3)
+    n = 500
+    q_ref = euler_to_quat(rng.uniform(-1, 1, n), rng.uniform(-1, 1, n), rng.uniform(-3, 3, n))
+    turn = euler_to_quat(0.0, 0.0, np.radians(7.0))
+    tilt = euler_to_quat(np.radians(0.5), 0.0, 0.0)
+    q_est = quat_mul(turn, q_ref)
+    assert summarize(q_est, q_ref).total_rmse_deg == pytest.approx(7.0, abs=1e-6)
+    assert fitted_total_rmse_deg(q_est, q_ref) < 1e-3
+    q_est = quat_mul(tilt, quat_mul(turn, q_ref))
+    assert fitted_total_rmse_deg(q_est, q_ref) == pytest.approx(0.5, abs=1e-3)
+    # Unscored samples and missing estimates stay out of the fit; a missing one counts 180° in the score.
+    q_est[:10] = np.nan
+    mask = np.ones(n, bool)
+    mask[10:20] = False
+    expected = np.sqrt((10 * 180.0**2 + (n - 20) * 0.5**2) / (n - 10))
+    assert fitted_total_rmse_deg(q_est, q_ref, mask) == pytest.approx(expected, rel=1e-3)

@@ -82,6 +82,18 @@ def fit_heading_offset(q_est: ArrayLike, q_ref: ArrayLike) -> np.ndarray:
     return turned(0.5 * (lo + hi))
 
 
+def fitted_total_rmse_deg(q_est: ArrayLike, q_ref: ArrayLike, mask: ArrayLike | None = None) -> float:
+    """Total RMSE, degrees, over ``mask`` (default all) after :func:`fit_heading_offset` on the samples where both
+    ``q_est`` and ``q_ref`` (``(N, 4)``) are finite: the 6-D score (heading drift, not north)."""
+    q_est = np.asarray(q_est, dtype=float)
+    q_ref = np.asarray(q_ref, dtype=float)
+    sel = np.ones(len(q_ref), dtype=bool) if mask is None else np.asarray(mask, dtype=bool).copy()
+    sel &= np.all(np.isfinite(q_ref), axis=-1) & np.all(np.isfinite(q_est), axis=-1)
+    q_fit = q_ref.copy()
+    q_fit[sel] = fit_heading_offset(q_est[sel], q_ref[sel])
+    return summarize(q_est, q_fit, mask).total_rmse_deg
+
+
 def summarize(q_est: ArrayLike, q_ref: ArrayLike, mask: ArrayLike | None = None) -> ErrorSummary:
     """Score ``q_est`` against ``q_ref`` (both ``(N, 4)``, same world frame) over ``mask`` (default all).
 
