@@ -22,6 +22,11 @@ from typing import Any
 
 from .errors import BagError, CcfError, ParameterError
 
+#: The magnetometer topic read when ``--mag-topic`` is not given (a bag without it runs 6-D, with a warning).
+DEFAULT_MAG_TOPIC = '/imu/mag'
+MAG_TOPIC_HELP = (f'sensor_msgs/MagneticField input topic (if not given: {DEFAULT_MAG_TOPIC}, 6-D with a warning if '
+                  'the bag has none; a topic given here must be in the bag)')
+
 
 class HelpFormatter(argparse.RawDescriptionHelpFormatter):
     """Descriptions as written; ``(default: X)`` after the help of every option that has a default.
@@ -75,11 +80,16 @@ def _engine(args: argparse.Namespace) -> Any:
     return ImuEngine(filt, adapter)
 
 
-def _writable(path: str | Path, what: str) -> Path:
-    """``path`` if its directory exists (checked before the slow part); :class:`CcfError` otherwise."""
+def _writable(path: str | Path, what: str, overwrite: bool) -> Path:
+    """``path`` if its directory exists and it does not (or is a file and ``overwrite``), checked before the slow
+    part; :class:`CcfError` otherwise."""
     p = Path(path)
     if not p.parent.is_dir():
         raise CcfError(f'cannot write {what} {p}: no such directory {p.parent}')
+    if p.is_dir():
+        raise CcfError(f'cannot write {what} {p}: it is a folder')
+    if p.exists() and not overwrite:
+        raise CcfError(f'{p} exists; pass --overwrite to replace it')
     return p
 
 
@@ -97,11 +107,20 @@ def cmd_replay(args: argparse.Namespace) -> int:
         args.output,
         engine,
         imu_topic=args.imu_topic,
-        mag_topic=None if args.no_mag else args.mag_topic,
+        mag_topic=None if args.no_mag else (args.mag_topic or DEFAULT_MAG_TOPIC),
+        mag_required=args.mag_topic is not None,
         storage=args.storage,
         copy_input=args.copy_input,
         overwrite=args.overwrite,
     )
+    from .settings import NODE_DEFAULTS
+
+    node_only = sorted(set(_settings(args)[1]) & set(NODE_DEFAULTS))
+    if node_only:
+        summary.warnings.append(f'{", ".join(node_only)}: node settings, without effect on replay (it writes '
+                                '/imu/gyro_bias for every sample)')
+    for w in summary.warnings:
+        print(f'warning: {w}', file=sys.stderr)
     print(f'wrote {args.output}: {summary.line()}')
     return 0
 
@@ -109,8 +128,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
 def cmd_eval(args: argparse.Namespace) -> int:
     from .offline.evaluate import evaluate, format_summary, load_aligned
 
-    json_path = _writable(args.json, 'JSON') if args.json else None
-    plot_path = _writable(args.plot, 'plot') if args.plot else None
+    json_path = _writable(args.json, 'JSON', args.overwrite) if args.json else None
+    plot_path = _writable(args.plot, 'plot', args.overwrite) if args.plot else None
     aligned = load_aligned(
         args.bag,
         args.reference,
@@ -188,6 +207,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def cmd_study(args: argparse.Namespace) -> int:
+    from .offline.bagio import message_counts, require_topic
     from .study.datasets import Topics
     from .study.report import write_report
     from .study.run import StudyOptions, run_study
@@ -198,6 +218,10 @@ def cmd_study(args: argparse.Namespace) -> int:
     for bag in args.bags:
         if not Path(bag).exists():
             raise BagError(f'{bag}: no such bag')
+        if args.mag_topic is not None:
+            require_topic(bag, args.mag_topic)
+        elif not message_counts(bag).get(DEFAULT_MAG_TOPIC):
+            print(f'warning: {bag}: no {DEFAULT_MAG_TOPIC}: 6-D, heading relative to the start', file=sys.stderr)
     opts = StudyOptions(
         long_run_s=args.long_run_s,
         jobs=args.jobs,
@@ -206,7 +230,7 @@ def cmd_study(args: argparse.Namespace) -> int:
         repetitions=args.repetitions,
         bode_frequencies=args.bode_frequencies,
     )
-    topics = Topics(args.imu_topic, args.mag_topic, args.reference, args.mask_topic or None)
+    topics = Topics(args.imu_topic, args.mag_topic or DEFAULT_MAG_TOPIC, args.reference, args.mask_topic or None)
     results = run_study(args.bags, opts, topics=topics, progress=not args.quiet)
     summary = write_report(results, out, 'ccf ' + shlex.join(args.argv))
     for v in summary['verdicts']:
@@ -325,7 +349,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument('bag', help='input: rosbag2 directory (mcap or sqlite3) or ROS 1 .bag')
     r.add_argument('-o', '--output', required=True, help='output rosbag2 directory')
     r.add_argument('--imu-topic', default='/imu/data_raw', help='sensor_msgs/Imu input topic')
-    r.add_argument('--mag-topic', default='/imu/mag', help='sensor_msgs/MagneticField input topic')
+    r.add_argument('--mag-topic', help=MAG_TOPIC_HELP)
     r.add_argument('--no-mag', action='store_true', help='ignore the magnetometer (6-D filter)')
     r.add_argument('--params-file', action='append', metavar='FILE',
                    help='ROS 2 parameters YAML, as for the node (config/ccf.yaml, a ccf calibrate-mag result); '
@@ -348,6 +372,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument('--mask-topic', help='std_msgs/Bool topic: score only where true (BROAD: /ground_truth/moving)')
     e.add_argument('--json', metavar='FILE', help='write the figures as JSON')
     e.add_argument('--plot', metavar='FILE.png', help='plot roll/pitch/yaw of estimate and reference')
+    e.add_argument('--overwrite', action='store_true', help='replace an existing --json or --plot file')
     e.set_defaults(func=cmd_eval)
 
     s = add('simulate', 'write a synthetic IMU + magnetometer + ground-truth bag')
@@ -379,7 +404,7 @@ def build_parser() -> argparse.ArgumentParser:
     st.add_argument('bags', nargs='+', help='bags with IMU, magnetometer and reference orientation (BROAD layout)')
     st.add_argument('-o', '--output', required=True, help='output directory')
     st.add_argument('--imu-topic', default='/imu/data_raw', help='sensor_msgs/Imu topic')
-    st.add_argument('--mag-topic', default='/imu/mag', help='sensor_msgs/MagneticField topic')
+    st.add_argument('--mag-topic', help=MAG_TOPIC_HELP)
     st.add_argument('--reference', default='/ground_truth/pose', help='reference orientation topic')
     st.add_argument('--mask-topic', default='/ground_truth/moving', help="Bool topic: score only where true ('' = all)")
     st.add_argument('--long-run-s', type=float, default=7200.0, help='simulated long run, s (0 = skip)')

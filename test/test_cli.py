@@ -190,13 +190,25 @@ def test_other_input_errors_are_one_line(sim_bag, tmp_path, capsys):
          'expected sensor_msgs/msg/MagneticField'),
         (['replay', str(tmp_path / 'nothing'), '-o', str(tmp_path / 'x')], 'no such bag'),
         (['replay', str(sim_bag), '-o', str(tmp_path / 'afile' / 'dir')], 'cannot create'),  # a file as folder
-        (['simulate', '-o', str(tmp_path / 's'), '--duration', '0'], 'must be > 0'),
+        (['replay', str(sim_bag), '-o', str(tmp_path / 'x'), '--mag-topic', '/nope'], 'topic /nope not in bag'),
+        (['replay', str(sim_bag), '-o', str(tmp_path / 'afile'), '--overwrite'], 'is a file, not a bag'),
+        (['simulate', '-o', str(tmp_path / 's'), '--duration', '0'], 'finite and > 0'),
+        (['simulate', '-o', str(tmp_path / 's'), '--duration', 'inf'], 'finite and > 0'),
+        (['simulate', '-o', str(tmp_path / 's'), '--seed', '-1'], 'seed must be an integer >= 0'),
+        (['simulate', '-o', str(tmp_path / 's'), '--duration', '0.001'], 'ask for at least 2'),
+        (['simulate', '-o', str(tmp_path / 'afile'), '--overwrite'], 'is a file, not a bag'),
         (['play', str(sim_bag), '--rate', '0'], '--rate must be > 0'),
         (['eval', str(sim_bag), '--reference', '/ground_truth/pose', '--json', str(tmp_path / 'no' / 'x.json')],
          'no such directory'),
         (['eval', str(sim_bag), '--reference', '/ground_truth/pose'], '/imu/data'),  # no estimate in a raw bag
-        (['eval', str(sim_bag), '--reference', '/ground_truth/pose', '--estimate-topic', '/imu/data_raw',
+        (['eval', str(sim_bag), '--reference', '/ground_truth/pose', '--estimate-topic', '/imu/data_raw'],
+         'marks its orientation unknown'),  # a driver's raw Imu: orientation_covariance[0] = -1
+        (['eval', str(sim_bag), '--reference', '/ground_truth/pose', '--estimate-topic', '/ground_truth/pose',
           '--mask-topic', '/imu/mag'], 'expected std_msgs/msg/Bool'),
+        (['eval', str(sim_bag), '--reference', '/ground_truth/pose', '--estimate-topic', '/ground_truth/pose',
+          '--json', str(tmp_path / 'afile')], 'exists; pass --overwrite'),
+        (['eval', str(sim_bag), '--reference', '/ground_truth/pose', '--estimate-topic', '/ground_truth/pose',
+          '--plot', str(tmp_path / 'afile')], 'exists; pass --overwrite'),
         (['demo', '--offline-only', '--live-rate', '-1'], '--live-rate'),
     ]
     for argv, text in cases:
@@ -204,6 +216,7 @@ def test_other_input_errors_are_one_line(sim_bag, tmp_path, capsys):
         line = one_line(capsys.readouterr().err)
         assert line.startswith(f'ccf {argv[0]}: error: ') and text in line, (argv, line)
     nothing_left(tmp_path, 'x', 's')
+    assert (tmp_path / 'afile').read_text() == '' and not (tmp_path / '.afile.partial').exists()
 
 
 def test_debug_reraises_input_errors_with_their_traceback(sim_bag, tmp_path):
@@ -366,10 +379,61 @@ def test_an_output_folder_that_does_not_exist_yet_is_created(sim_bag, tmp_path, 
 
 
 def test_replay_reads_imu_tools_parameter_files_unchanged(sim_bag, tmp_path):
-    """imu_tools' own YAMLs (QoS overrides, gains, do_bias_estimation) apply to replay as to the node."""
+    """imu_tools' own YAMLs (QoS overrides, gains, do_bias_estimation) apply to replay as to the node: each gives
+    the output of the same settings on the command line (filter_config.yaml sets use_mag: false), and not the
+    defaults'."""
+    from ccf_ros.offline.bagio import read_orientations
+
     data = Path(__file__).resolve().parent / 'data'
-    for name in ('imu_filter.yaml', 'filter_config.yaml'):
-        assert main(['replay', str(sim_bag), '-o', str(tmp_path / name), '--params-file', str(data / name)]) == 0
+
+    def replayed(name: str, *options: str) -> np.ndarray:
+        assert main(['replay', str(sim_bag), '-o', str(tmp_path / name), *options]) == 0
+        return read_orientations(tmp_path / name, '/imu/data')[1]
+
+    default = replayed('default')
+    assert np.array_equal(replayed('imu_filter', '--params-file', str(data / 'imu_filter.yaml')), default)
+    from_file = replayed('filter_config', '--params-file', str(data / 'filter_config.yaml'))
+    assert np.array_equal(from_file, replayed('no_mag', '--param', 'use_mag=false'))
+    assert not np.array_equal(from_file, default)
+
+
+def test_a_bag_without_the_magnetometer_topic_replays_6d_with_a_warning(sim_bag, tmp_path, capsys):
+    from conftest import copy_bag
+
+    bag = copy_bag(sim_bag, tmp_path / 'nomag', edit=lambda topic, msg, t: [] if topic == '/imu/mag' else [(msg, t)])
+    assert main(['replay', str(bag), '-o', str(tmp_path / 'out')]) == 0
+    err = capsys.readouterr().err
+    assert 'warning: no /imu/mag in the bag: 6-D' in err
+    assert main(['replay', str(bag), '-o', str(tmp_path / 'out2'), '--no-mag']) == 0
+    assert 'warning' not in capsys.readouterr().err
+    # Named by the user: a typo must not pass as a 6-D run.
+    assert main(['replay', str(bag), '-o', str(tmp_path / 'out3'), '--mag-topic', '/imu/mag']) == 2
+    assert 'no messages on /imu/mag' in one_line(capsys.readouterr().err)  # the topic is there, but empty
+    assert main(['study', str(bag), '-o', str(tmp_path / 'st'), '--mag-topic', '/imu/magnetic_field']) == 2
+    assert 'topic /imu/magnetic_field not in bag' in one_line(capsys.readouterr().err)
+    # Node-only settings have no effect offline: said once, not silently dropped.
+    assert main(['replay', str(sim_bag), '-o', str(tmp_path / 'out4'), '--param', 'gyro_bias_rate_hz=1']) == 0
+    assert 'warning: gyro_bias_rate_hz: node settings, without effect on replay' in capsys.readouterr().err
+
+
+def test_replay_of_an_imu_topic_without_messages_is_an_error(sim_bag, tmp_path, capsys):
+    from conftest import copy_bag
+
+    bag = copy_bag(sim_bag, tmp_path / 'empty', edit=lambda topic, msg, t: [] if topic == '/imu/data_raw' else [(msg, t)])
+    assert main(['replay', str(bag), '-o', str(tmp_path / 'out')]) == 2
+    assert 'no messages on /imu/data_raw' in one_line(capsys.readouterr().err)
+    nothing_left(tmp_path, 'out')
+
+
+def test_eval_replaces_its_json_and_plot_only_with_overwrite(sim_bag, tmp_path, capsys):
+    out, js = tmp_path / 'out', tmp_path / 'score.json'
+    assert main(['replay', str(sim_bag), '-o', str(out)]) == 0
+    js.write_text('precious')
+    argv = ['eval', str(out), '--reference', '/ground_truth/pose', '--reference-bag', str(sim_bag), '--json', str(js)]
+    assert main(argv) == 2 and js.read_text() == 'precious'
+    capsys.readouterr()
+    assert main([*argv, '--overwrite']) == 0
+    assert '"total_rmse_deg"' in js.read_text()
 
 
 def test_overwrite_never_deletes_a_folder_that_is_not_a_bag_nor_the_input(sim_bag, tmp_path, capsys):

@@ -7,6 +7,7 @@ messages passes unchanged (a bug shows its traceback).
 
 from __future__ import annotations
 
+import math
 import shutil
 import sqlite3
 from collections.abc import Callable, Iterable, Iterator
@@ -149,36 +150,51 @@ def _remove(path: Path) -> None:
     shutil.rmtree(path) if path.is_dir() and not path.is_symlink() else path.unlink()
 
 
-def refuse_existing(path: Path, overwrite: bool) -> None:
-    """:class:`BagError` if output ``path`` exists and may not be replaced (check before any slow work)."""
-    if path.exists() and not overwrite:
+def refuse_existing(path: Path, overwrite: bool, *, bag: bool = True) -> None:
+    """:class:`BagError` if output ``path`` exists and may not be replaced (check before any slow work).
+
+    With ``overwrite`` an existing output is replaced only if it is of the kind written: a bag (``bag``, a folder
+    of ``metadata.yaml`` and storage files, or empty) or a file; never another folder, nor a file by a bag.
+    """
+    if not (path.exists() or path.is_symlink()):
+        return
+    if not overwrite:
         raise BagError(f'{path} exists; pass --overwrite to replace it')
+    _check_replaceable(path, bag)
 
 
-def _replaceable_dir(path: Path) -> bool:
-    """A folder ``--overwrite`` may replace: a rosbag2 bag (``metadata.yaml`` and storage files only) or empty."""
-    names = {p.name for p in path.iterdir()}
-    return not names or ('metadata.yaml' in names and all(p.is_file() for p in path.iterdir()))
+def _check_replaceable(path: Path, bag: bool) -> None:
+    if path.is_symlink():
+        return  # the link is replaced, not what it points to
+    if path.is_dir():
+        if not bag:
+            raise BagError(f'{path} is a folder; refusing to replace it with a file (choose another output)')
+        names = {p.name for p in path.iterdir()}
+        if names and not ('metadata.yaml' in names and all(p.is_file() for p in path.iterdir())):
+            raise BagError(f'{path} is a folder that is not a bag; refusing to replace it (choose another output)')
+    elif bag and path.exists():
+        raise BagError(f'{path} is a file, not a bag; refusing to replace it (choose another output)')
 
 
 @contextmanager
-def staged(path: str | Path) -> Iterator[Path]:
-    """Where to write a new bag (or file) that becomes ``path`` only when complete: an error or Ctrl-C leaves no
-    half bag. The one atomic-write helper of the offline tools.
+def staged(path: str | Path, *, bag: bool = True) -> Iterator[Path]:
+    """Where to write a new bag (or, ``bag=False``, a file) that becomes ``path`` only when complete: an error or
+    Ctrl-C leaves no half bag. The one atomic-write helper of the offline tools.
 
     Yields ``.NAME.partial/NAME`` next to ``path`` (the storage file is named after the bag, ``NAME.mcap``); when
-    the ``with`` body succeeds it replaces ``path`` (if that exists), otherwise the staging directory is removed.
+    the ``with`` body succeeds it replaces ``path`` (if that exists and is of the same kind, see
+    :func:`refuse_existing`), otherwise the staging directory is removed.
     """
     path = Path(path)
     stage = path.with_name(f'.{path.name}.partial')
+    if path.exists() or path.is_symlink():
+        _check_replaceable(path, bag)  # before the stage exists: a refusal leaves nothing behind
     try:
         if stage.exists() or stage.is_symlink():
             _remove(stage)  # left over from a killed run
         stage.mkdir(parents=True)  # the output's folder too, if it does not exist yet
     except OSError as err:
         raise BagError(f'cannot create {stage}: {err.strerror}') from err
-    if path.is_dir() and not path.is_symlink() and not _replaceable_dir(path):
-        raise BagError(f'{path} is a folder that is not a bag; refusing to replace it (choose another output)')
     try:
         yield stage / path.name
         if path.exists() or path.is_symlink():
@@ -235,6 +251,24 @@ def connections_for(
         if msgtype is not None and c.msgtype != msgtype:
             raise BagError(f'topic {topic} is {c.msgtype}, expected {msgtype}')
     return conns
+
+
+def message_counts(path: str | Path) -> dict[str, int]:
+    """Messages per topic of a bag (a topic without messages: 0; :class:`BagError` if it cannot be read)."""
+    counts: dict[str, int] = {}
+    with open_bag(path) as reader:
+        for c in reader.connections:
+            counts[c.topic] = counts.get(c.topic, 0) + c.msgcount
+    return counts
+
+
+def require_topic(path: str | Path, topic: str) -> None:
+    """:class:`BagError` listing the bag's topics unless ``topic`` is one of them and has messages."""
+    counts = message_counts(path)
+    if topic not in counts:
+        raise BagError(f'{path}: topic {topic} not in bag (topics: {", ".join(sorted(counts)) or "none"})')
+    if not counts[topic]:
+        raise BagError(f'{path}: no messages on {topic}')
 
 
 def in_bag_order(reader: AnyReader, conns: Iterable[Connection]) -> list[Connection]:
@@ -323,11 +357,24 @@ def read_topic(path: str | Path, topic: str, msgtype: str | None = None) -> Iter
 
 
 def read_orientations(path: str | Path, topic: str) -> tuple[np.ndarray, np.ndarray]:
-    """Header stamps ``(N,)`` s and orientations ``(N, 4)`` ``[w, x, y, z]`` of a topic."""
+    """Header stamps ``(N,)`` s and orientations ``(N, 4)`` ``[w, x, y, z]`` of a topic.
+
+    An Imu message that marks its orientation unknown (``orientation_covariance[0] == -1``, as a driver's raw
+    output does) gives NaN; :class:`BagError` if every message of the topic does (it holds no orientation).
+    """
     t, q = [], []
+    n_unknown = 0
+    nan4 = (math.nan,) * 4
     for conn, _, msg in read_topic(path, topic):
-        q.append(orientation_of(msg, conn.msgtype))
+        if conn.msgtype.endswith('/Imu') and msg.orientation_covariance[0] == -1.0:
+            n_unknown += 1
+            q.append(nan4)
+        else:
+            q.append(orientation_of(msg, conn.msgtype))
         t.append(stamp_s(msg.header))
+    if t and n_unknown == len(t):
+        raise BagError(f'{path}: every message on {topic} marks its orientation unknown (orientation_covariance[0] '
+                       '= -1): it holds no orientation to score (the filter output is /imu/data)')
     return np.array(t, dtype=float), np.array(q, dtype=float).reshape(-1, 4)
 
 

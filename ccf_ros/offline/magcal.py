@@ -411,7 +411,7 @@ def plot(path: str | Path, raw: ArrayLike, cal: MagCalibration) -> None:
 def cmd_calibrate_mag(args: argparse.Namespace) -> int:
     """Read, fit, report, write the parameters YAML (atomically) and optionally the plot."""
     out = Path(args.output)
-    refuse_existing(out, args.overwrite)  # before the slow part, not after
+    refuse_existing(out, args.overwrite, bag=False)  # before the slow part, not after
     if args.field_norm_ut is not None and not (math.isfinite(args.field_norm_ut) and args.field_norm_ut > 0):
         raise ParameterError(f'--field-norm-ut must be a positive number of uT, got {args.field_norm_ut!r}')
     raw = read_mag(args.bag, args.mag_topic)
@@ -442,7 +442,7 @@ def cmd_calibrate_mag(args: argparse.Namespace) -> int:
         print(f'warning: coverage {cal.coverage:.0%} is low: rotate the sensor through more orientations '
               '(all sides up, full turns) and record again')
     # Staged and renamed: a reader (or a crash) never sees half a file.
-    with staged(out) as tmp:
+    with staged(out, bag=False) as tmp:
         try:
             tmp.write_text(params_yaml(cal))
         except OSError as err:

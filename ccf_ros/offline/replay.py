@@ -72,6 +72,8 @@ class ReplaySummary:
     n_nonfinite_resets: int = 0
     #: the filter's flags after the last sample (:class:`~ccf_ros.core.base.FilterFlags` as a dict)
     flags: dict[str, bool] = field(default_factory=dict)
+    #: what the user should know about the run (e.g. no magnetometer topic in the bag), one sentence each
+    warnings: list[str] = field(default_factory=list)
 
     def line(self) -> str:
         skipped = ', '.join(f'{k} {v}' for k, v in sorted(self.skipped.items())) or 'none'
@@ -92,6 +94,8 @@ class Topics(NamedTuple):
     mag: str | None = '/imu/mag'
     out_imu: str = '/imu/data'
     out_bias: str = '/imu/gyro_bias'
+    #: a missing ``mag`` topic is an error (True: the user named it) or a 6-D run with a warning (False)
+    mag_required: bool = False
 
 
 def replay(
@@ -101,6 +105,7 @@ def replay(
     *,
     imu_topic: str = '/imu/data_raw',
     mag_topic: str | None = '/imu/mag',
+    mag_required: bool = False,
     out_imu_topic: str = '/imu/data',
     out_bias_topic: str = '/imu/gyro_bias',
     storage: str = 'mcap',
@@ -112,18 +117,23 @@ def replay(
 
     Written to a temporary sibling and renamed at the end: an error or Ctrl-C leaves no half bag behind.
 
+    A bag without ``mag_topic`` replays 6-D (heading relative to the start) with a warning in the summary, unless
+    ``mag_required``, which makes it an error (the user named a topic, and a typo must not pass silently).
+
     Raises:
-        BagError: unreadable input, missing IMU topic, output not writable, or ``bag_out`` exists without
-            ``overwrite``. Anything the engine raises passes unchanged (it is a bug, not a bad bag).
+        BagError: unreadable input, missing or empty IMU topic, missing ``mag_topic`` with ``mag_required``, output
+            not writable, or ``bag_out`` exists without ``overwrite`` (or is not a bag). Anything the engine raises
+            passes unchanged (it is a bug, not a bad bag).
     """
     bag_out = Path(bag_out)
-    refuse_existing(bag_out, overwrite)
     if bag_out.resolve() == Path(bag_in).resolve() or bag_out.resolve() in Path(bag_in).resolve().parents:
         raise BagError(f'output {bag_out} must neither be the input bag nor a folder that holds it')
-    topics = Topics(imu_topic, mag_topic, out_imu_topic, out_bias_topic)
+    refuse_existing(bag_out, overwrite)
+    topics = Topics(imu_topic, mag_topic, out_imu_topic, out_bias_topic, mag_required)
     t0 = time.perf_counter()
     with staged(bag_out) as tmp, open_bag(bag_in) as reader, open_writer(tmp, storage) as writer:
-        n_out = _Replayer(reader, writer, engine, bag_in, topics, copy_input).run(progress)
+        replayer = _Replayer(reader, writer, engine, bag_in, topics, copy_input)
+        n_out = replayer.run(progress)
     return ReplaySummary(
         n_in=engine.n_in,
         n_out=n_out,
@@ -135,6 +145,7 @@ def replay(
         n_resets_jump=engine.n_resets_jump,
         n_nonfinite_resets=engine.n_nonfinite_resets,
         flags=engine.filter.flags._asdict(),
+        warnings=replayer.warnings,
     )
 
 
@@ -279,13 +290,25 @@ class _Replayer:
         copy_input: bool,
     ) -> None:
         imu_conns = connections_for(reader, topics.imu, msgtype=IMU)
-        mag_conns = connections_for(reader, topics.mag, required=False, msgtype=MAGNETIC_FIELD) if topics.mag else []
+        mag_conns = (
+            connections_for(reader, topics.mag, required=topics.mag_required, msgtype=MAGNETIC_FIELD)
+            if topics.mag else []
+        )
+        self.warnings: list[str] = []
+        n_mag = sum(c.msgcount for c in mag_conns)
+        if topics.mag and topics.mag_required and mag_conns and not n_mag:
+            raise BagError(f'{bag}: no messages on {topics.mag}')
+        if topics.mag and not n_mag:
+            self.warnings.append(f'no {topics.mag} in the bag: 6-D, heading relative to the start (--mag-topic names '
+                                 'another topic, --no-mag silences this)')
         self._reader = reader
         self._bag = bag
         self._inputs = list(reader.connections) if copy_input else in_bag_order(reader, imu_conns + mag_conns)
         #: Input connection id -> what its messages are for (copies aside).
         self._kinds = {c.id: _MAG for c in mag_conns} | {c.id: _IMU for c in imu_conns}
         self._n_imu = sum(c.msgcount for c in imu_conns)
+        if not self._n_imu:
+            raise BagError(f'{bag}: no messages on {topics.imu}')
         self._store = typestore()
         self._outputs = _Outputs.add(writer, reader, self._store, topics, copy_input)
         self._fast = _FastCdrPath(engine, bag)

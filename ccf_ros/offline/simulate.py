@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -60,10 +61,14 @@ def generate(
     Deterministic for a seed. The gyro bias starts at ``N(0, bias_init)`` per axis, random-walks, and (if
     ``bias_drift_rad_s`` > 0) drifts as a sinusoid of that amplitude and ``bias_drift_period_s`` (thermal drift).
     """
-    if not (duration_s > 0 and rate_hz > 0):
-        raise ParameterError(f'duration and rate must be > 0, got {duration_s!r} s, {rate_hz!r} Hz')
-    rng = np.random.default_rng(seed)
+    if not (0 < duration_s < math.inf and 0 < rate_hz < math.inf):
+        raise ParameterError(f'duration and rate must be finite and > 0, got {duration_s!r} s, {rate_hz!r} Hz')
+    if not (isinstance(seed, (int, np.integer)) and seed >= 0):
+        raise ParameterError(f'seed must be an integer >= 0, got {seed!r}')
     n = int(round(duration_s * rate_hz))
+    if n < 2:
+        raise ParameterError(f'{duration_s:g} s at {rate_hz:g} Hz is {n} sample(s): ask for at least 2')
+    rng = np.random.default_rng(seed)
     tr = np.arange(n) / rate_hz
     rest = min(rest_s, duration_s / 4)
     ramp = _ramp(tr, rest)
