@@ -4,7 +4,7 @@ No ROS import: the adapters convert messages to floats, call :meth:`ImuEngine.on
 in arrival order, and convert the :class:`Output` back. Same input in the same order -> same output, bit for bit.
 
 Every IMU message is answered once an orientation exists, like imu_tools does: a sample that cannot advance the
-filter (repeated or backward stamp, non-finite gyro) gets the current orientation, and is counted.
+filter (repeated or backward stamp, non-finite or corrupted gyro) gets the current orientation, and is counted.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-from .core.base import ANSWERED_BELOW, OrientationFilter, Status
+from .core.base import ACC_MAX_M_S2, ANSWERED_BELOW, OrientationFilter, Status
 from .core.ccf import GRAVITY_M_S2, CcfParams
 from .core.pairing import MagPairer
 from .core.quaternion import WORLD_FRAMES, level_quat, quat_from_acc_mag_scalar, quat_mul_scalar, relevel, to_xyzw
@@ -25,6 +25,13 @@ JUMP_BACK_SAMPLES = 3
 
 Vec3 = tuple[float, float, float]
 
+
+_ACC_MAX2 = ACC_MAX_M_S2 * ACC_MAX_M_S2
+
+
+def _norm2_within(v: Vec3, lo: float, hi: float) -> bool:
+    """``lo < |v|² < hi``; False for NaN (comparisons with NaN are False)."""
+    return lo < v[0] * v[0] + v[1] * v[1] + v[2] * v[2] < hi
 
 class Output(NamedTuple):
     """One answered IMU sample.
@@ -204,9 +211,13 @@ class ImuEngine:
         status = f.update(t_s, gyr, acc, mag)
         if not f.initialized:
             return None
-        flags = f.flags
-        if flags.acc_used:
-            q = quat_from_acc_mag_scalar(*acc, *mag, True) if mag is not None and flags.mag_used else None
+        # Usable or not by this sample's own values, as the filter's input rules judge them (not by the filter's
+        # flags: a sample it skipped, for a bad gyro or a repeated stamp, was never looked at and left them stale).
+        acc_used = _norm2_within(acc, 1e-12, _ACC_MAX2)
+        if acc_used:
+            q = None
+            if mag is not None and f.params.use_mag and _norm2_within(mag, 1e-30, math.inf):
+                q = quat_from_acc_mag_scalar(*acc, *mag, True)
             if q is not None:
                 self._stateless_heading = True
             elif self._stateless_q is not None:
@@ -215,7 +226,7 @@ class ImuEngine:
                 q = level_quat(*acc)
                 self._stateless_heading = False
             self._stateless_q = q
-        if status >= ANSWERED_BELOW or self._stateless_q is None or not flags.acc_used:
+        if self._stateless_q is None or not acc_used:
             self.n_answered_stale += 1
         if self._stateless_q is None:
             return None

@@ -608,7 +608,8 @@ def main(args: list[str] | None = None, profile: str = 'ccf_node') -> None:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception as err:
-        if not _is_startup_error(err):
+        # Only what the start-up raised is the user's parameters; an error while running is a bug: its traceback.
+        if node is not None or not _is_startup_error(err):
             raise
         # Invalid parameters at start-up: one clear line, non-zero exit.
         print(f'{profile}: error: {err}', flush=True)

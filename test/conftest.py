@@ -111,13 +111,15 @@ def _stamp(msg, t_s):
 
 
 def make_faulty(src: Path, dst: Path) -> tuple[Path, dict[str, int]]:  # noqa: C901 - one list of faults, read top down
-    """``src`` with NaN/Inf, zero vectors, duplicated and backward stamps, a 30 s gap and 10 s of silent
-    magnetometer injected; returns the bag and the counts of injected invalid samples."""
+    """``src`` with NaN/Inf, zero vectors, corrupted messages (every field NaN; finite but absurd values: a gyro of
+    1e200 rad/s, an accelerometer of 1e150 m/s²), duplicated and backward stamps (one of them a copy with a zero
+    accelerometer), a 30 s gap and 10 s of silent magnetometer injected; returns the bag and the counts of injected
+    invalid samples (``bad_gyro``: those whose gyro makes them skipped)."""
     k = {'imu': 0, 'mag': 0}
-    injected = {'nan_gyro': 0, 'inf_gyro': 0, 'dup': 0, 'back': 0}
+    injected = {'nan_gyro': 0, 'inf_gyro': 0, 'huge_gyro': 0, 'all_nan': 0, 'dup': 0, 'back': 0}
     gap_s = 30.0
 
-    def edit(topic, msg, t):
+    def edit(topic, msg, t):  # noqa: C901 - the same list of faults
         if topic == '/imu/data_raw':
             i = k['imu']
             k['imu'] += 1
@@ -131,13 +133,25 @@ def make_faulty(src: Path, dst: Path) -> tuple[Path, dict[str, int]]:  # noqa: C
             elif i % 1009 == 7:
                 msg.angular_velocity.z = float('inf')
                 injected['inf_gyro'] += 1
+            elif i % 1013 == 8:  # finite, but its square overflows
+                msg.angular_velocity.y = 1e200
+                injected['huge_gyro'] += 1
+            elif i % 991 == 6:  # a sensor read error: every field NaN
+                for v in (msg.angular_velocity, msg.linear_acceleration):
+                    v.x = v.y = v.z = float('nan')
+                injected['all_nan'] += 1
             elif i % 499 == 3:
                 msg.linear_acceleration.x = msg.linear_acceleration.y = msg.linear_acceleration.z = 0.0
             elif i % 503 == 4:
                 msg.linear_acceleration.y = float('nan')
+            elif i % 1021 == 9:  # finite, and its square too: not a specific force
+                msg.linear_acceleration.z = 1e150
             if i % 701 == 11:
                 injected['dup'] += 1
-                return [(msg, t), (copy.deepcopy(msg), t)]
+                dup = copy.deepcopy(msg)
+                if injected['dup'] % 2:  # a repeated stamp whose accelerometer is broken
+                    dup.linear_acceleration.x = dup.linear_acceleration.y = dup.linear_acceleration.z = 0.0
+                return [(msg, t), (dup, t)]
             if i % 809 == 13:
                 injected['back'] += 1
                 back = copy.deepcopy(msg)
@@ -165,6 +179,7 @@ def make_faulty(src: Path, dst: Path) -> tuple[Path, dict[str, int]]:  # noqa: C
         return [(msg, t)]
 
     path = copy_bag(src, dst, edit=edit)
+    injected['bad_gyro'] = injected['nan_gyro'] + injected['inf_gyro'] + injected['huge_gyro'] + injected['all_nan']
     return path, injected
 
 

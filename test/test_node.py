@@ -433,6 +433,19 @@ def test_node_rejects_invalid_startup_parameters():
     assert r.returncode != 0 and 'tau_acc_s' in (r.stdout + r.stderr)
 
 
+def test_an_error_while_running_is_a_traceback_not_a_startup_parameter_error(monkeypatch):
+    """Only what the start-up raises is the user's parameters (one line, exit 2); a ValueError while spinning is a
+    bug and propagates with its traceback."""
+    import ccf_ros.node as node_module
+
+    def spin(_node):
+        raise ValueError('injected error while running')
+
+    monkeypatch.setattr(node_module.rclpy, 'spin', spin)
+    with pytest.raises(ValueError, match='injected error while running'):
+        node_module.main([])
+
+
 def _engine_over_bag(bag, imu_first_after_silence=False):
     """(stamp, [w, x, y, z]) of every answered IMU message of ``bag`` through the engine, in bag order.
 
@@ -506,7 +519,7 @@ def test_live_node_survives_faults_and_answers_every_sample(faulty_sim):
         assert np.array_equal(res.quat, q_alt), \
             f'first differences at samples {diff[:5]} of {len(q_ref)}; diagnostics {d}'
     assert d['samples answered'] == str(res.n_imu_sent)
-    assert int(d['skipped: skipped_bad_gyro']) == injected['nan_gyro'] + injected['inf_gyro']
+    assert int(d['skipped: skipped_bad_gyro']) == injected['bad_gyro']
     assert int(d['skipped: skipped_stamp']) == injected['dup'] + injected['back']
 
 

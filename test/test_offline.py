@@ -18,9 +18,11 @@ from ccf_ros.cli import main as ccf
 from ccf_ros.core import make_filter, run_batch
 from ccf_ros.core.base import ANSWERED_BELOW
 from ccf_ros.core.metrics import summarize
+from ccf_ros.core.registry import FILTERS
 from ccf_ros.engine import ImuEngine, Output
 from ccf_ros.offline.bagio import deserialize, open_bag, read_imu_arrays, read_messages, read_orientations, stamp_s
 from ccf_ros.offline.evaluate import align, evaluate, load_aligned
+from ccf_ros.settings import build
 
 CONFIG = Path(__file__).resolve().parents[1] / 'config' / 'ccf.yaml'
 
@@ -92,7 +94,7 @@ def test_replay_survives_injected_faults(faulty_sim, tmp_path, capsys):
     t_est, q_est = read_orientations(out, '/imu/data')
     assert np.all(np.isfinite(q_est))
     np.testing.assert_allclose(np.linalg.norm(q_est, axis=1), 1.0, atol=1e-9)
-    n_bad_gyro = injected['nan_gyro'] + injected['inf_gyro']
+    n_bad_gyro = injected['bad_gyro']
     n_bad_stamp = injected['dup'] + injected['back']
     assert f'samples in {len(imu.t_s)},' in line
     assert f'skipped_bad_gyro {n_bad_gyro}' in line
@@ -115,6 +117,26 @@ def test_replay_survives_injected_faults(faulty_sim, tmp_path, capsys):
     assert s.n_missing == 0
     assert s.total_rmse_deg < 5.0
 
+
+
+@pytest.mark.parametrize('stateless', [False, True])
+@pytest.mark.parametrize('name', sorted({k for k, _ in FILTERS}))
+def test_every_filter_answers_faulty_input_with_unit_quaternions_and_finite_covariance(faulty_sim, name, stateless):
+    """The engine as node and replay run it, for every filter, with and without imu_tools' ``stateless``: a corrupted
+    message (all NaN, a gyro of 1e200, an accelerometer of 1e150) or a repeated stamp with a zero accelerometer
+    neither raises nor puts NaN, a zero quaternion or an infinite covariance into any later answer."""
+    path, injected = faulty_sim
+    filt, adapter = build({'filter': name, 'stateless': stateless})
+    engine = ImuEngine(filt, adapter)
+    _, outs = engine_outputs(path, engine)
+    q = xyzw_to_wxyz(outs)
+    assert len(outs) == engine.n_in - engine.skipped_by_reason().get('skipped_no_acc_yet', 0)
+    assert np.isfinite(q).all()
+    np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-9)
+    cov = np.array([o.covariance for o in outs])
+    assert np.isfinite(cov).all() and (cov[:, [0, 4, 8]] > 0.0).all()
+    assert np.isfinite(np.array([o.bias for o in outs])).all()
+    assert engine.skipped_by_reason()['skipped_bad_gyro'] == injected['bad_gyro']
 
 def test_filter_statuses_for_each_bad_sample_rule():
     f = make_filter()

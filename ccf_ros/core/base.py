@@ -3,9 +3,10 @@
 A filter sees one IMU sample at a time through :meth:`OrientationFilter.update`. The rules for bad input live here,
 once, so that every filter (the CCF and the baselines) answers the same samples:
 
-* non-finite gyroscope -> the sample is skipped: no state change, no output;
+* non-finite gyroscope, or faster than :data:`GYRO_MAX_RAD_S` (a corrupted message) -> the sample is skipped: no
+  state change, no output;
 * stamp not later than the last accepted one (or non-finite) -> skipped;
-* non-finite or zero accelerometer -> gyro-only propagation;
+* non-finite or zero accelerometer, or beyond :data:`ACC_MAX_M_S2` -> gyro-only propagation;
 * non-finite or zero magnetometer (or none) -> no heading correction;
 * gap longer than ``max_dt_s`` -> re-initialise from accelerometer/magnetometer instead of integrating across it;
 * before the first sample with a valid accelerometer there is no orientation: those samples are skipped.
@@ -44,6 +45,13 @@ _BAD_GYRO = int(Status.SKIPPED_BAD_GYRO)
 _BAD_STAMP = int(Status.SKIPPED_STAMP)
 _NO_ACC_YET = int(Status.SKIPPED_NO_ACC_YET)
 _INF = math.inf
+#: A gyro reading above this norm, rad/s, is not a rotation but a corrupted message (1000 rad/s = 57 000 °/s, 25x the
+#: range of any MEMS gyro; a finite 1e200 would otherwise overflow the integration to inf).
+GYRO_MAX_RAD_S = 1000.0
+#: An accelerometer reading above this norm, m/s², is a corrupted message (about 1000 g, 2.5x a high-g MEMS range).
+ACC_MAX_M_S2 = 1.0e4
+_GYRO_MAX2 = GYRO_MAX_RAD_S * GYRO_MAX_RAD_S
+_ACC_MAX2 = ACC_MAX_M_S2 * ACC_MAX_M_S2
 
 
 class FilterFlags(NamedTuple):
@@ -245,9 +253,8 @@ class OrientationFilter(ABC):
             a :class:`Status` value (as ``int``); below :data:`ANSWERED_BELOW` the orientation is valid.
         """
         gx, gy, gz = gyr
-        s = gx + gy + gz
-        # x - x is 0.0 only for finite x: one test catches NaN and Inf in any component.
-        if s - s != 0.0:
+        # Comparisons with NaN are False: one test catches NaN, Inf and a corrupted huge value in any component.
+        if not gx * gx + gy * gy + gz * gz < _GYRO_MAX2:
             self._counts[_BAD_GYRO] += 1
             return _BAD_GYRO
         dt = t_s - self._t_last
@@ -259,7 +266,7 @@ class OrientationFilter(ABC):
         self._t_last = t_s
         ax, ay, az = acc
         acc_n2 = ax * ax + ay * ay + az * az
-        if not 1e-12 < acc_n2 < _INF:
+        if not 1e-12 < acc_n2 < _ACC_MAX2:
             acc_n2 = 0.0
             self.n_no_acc += 1
             self._t_no_acc = t_s
