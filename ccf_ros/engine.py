@@ -22,6 +22,10 @@ from .settings import AdapterSettings
 JUMP_BACK_RESET_S = 1.0
 #: ... and this many such samples in a row (one stray stamp is just skipped).
 JUMP_BACK_SAMPLES = 3
+#: A stamp this much (s) after the latest one, and beyond the filter's ``max_dt_s``, is a new timeline (a gap) only
+#: once the next sample continues from it; a lone one (a clock-sync step undone, a bad stamp) is skipped instead of
+#: re-initialising the filter and leaving every later sample "far behind".
+JUMP_AHEAD_S = 1.0
 
 Vec3 = tuple[float, float, float]
 
@@ -69,7 +73,11 @@ class ImuEngine:
         self.n_answered_stale = 0
         self._t_const = 0.0
         self._t_last = -math.inf
+        #: the time the latest IMU sample was given to the filter at, s: its stamp, or the constant_dt clock
+        self.clock_s = -math.inf
         self._n_far_back = 0
+        #: stamp of a lone sample far ahead of _t_last, waiting for the next one to confirm it (None: none)
+        self._t_ahead: float | None = None
         self._counts_before = [0] * len(filt.counts)
         self._no_acc_before = 0
         self._no_mag_before = 0
@@ -110,6 +118,7 @@ class ImuEngine:
         self._bank_counts()
         self.filter = filt
         self._n_far_back = 0
+        self._t_ahead = None
         self._t_const = 0.0
         self._t_last = -math.inf
         self._stateless_q = None
@@ -120,6 +129,7 @@ class ImuEngine:
         f = self.filter
         self._bank_counts()
         self._n_far_back = 0
+        self._t_ahead = None
         f.reset()
         self._t_const = 0.0
         self._t_last = -math.inf
@@ -144,7 +154,19 @@ class ImuEngine:
         Returns the output, or None before the first usable accelerometer sample (no orientation exists yet).
         """
         self.n_in += 1
-        if t_s < self._t_last - JUMP_BACK_RESET_S:
+        t_last = self._t_last
+        if t_s - t_last > JUMP_AHEAD_S and t_last > -math.inf and t_s - t_last > self.filter.params.max_dt_s:
+            t_ahead = self._t_ahead
+            if t_ahead is None or t_s < t_ahead:
+                # A lone stamp far ahead: the filter sees it as a repeat of the latest stamp (skipped and
+                # answered with the current orientation), and nothing moves the clock or the pairing to it.
+                self._t_ahead = t_s
+                t_s = t_last
+            else:
+                self._t_ahead = None  # the stream goes on from there: a real gap (the filter re-initialises)
+        elif self._t_ahead is not None:
+            self._t_ahead = None
+        if t_s < t_last - JUMP_BACK_RESET_S:
             # Far behind: a stray stamp is skipped by the filter; several in a row mean the clock jumped back (bag
             # loop, simulation reset), and the filter starts over instead of waiting for time to catch up. The
             # magnetometer samples that came with the new stamps stay: the restart initialises heading from them.
@@ -162,6 +184,7 @@ class ImuEngine:
             # Fixed sample period: a synthetic clock advanced per message replaces the header stamps.
             self._t_const += self._constant_dt
             t_s = self._t_const
+        self.clock_s = t_s
         f = self.filter
         if self._stateless:
             return self._stateless_output(t_s, gyr, acc, mag)

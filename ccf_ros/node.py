@@ -479,7 +479,7 @@ class CcfNode(Node):
             if out.angular_velocity is not None or out.linear_acceleration is not None:
                 patch_imu_vectors(buf, off, out.angular_velocity, out.linear_acceleration)
             self.pub_imu.publish(bytes(buf))
-            if self._bias_due(t):
+            if self._bias_due(self.engine.clock_s):
                 self.pub_bias.publish(vector3_stamped(data, off, out.bias))
             if self._debug:
                 self._publish_debug(t, data, off, out, acc)
@@ -493,7 +493,7 @@ class CcfNode(Node):
         """The same answer built as messages (input that is not little-endian CDR)."""
         fill_imu(msg, out, list(out.covariance))
         self.pub_imu.publish(msg)
-        if self._bias_due(t):
+        if self._bias_due(self.engine.clock_s):
             b = Vector3Stamped(header=msg.header)
             b.vector.x, b.vector.y, b.vector.z = out.bias
             self.pub_bias.publish(b)
@@ -539,7 +539,8 @@ class CcfNode(Node):
         self.pub_tf.publish(self._tf_type(transforms=[tr]))
 
     def _bias_due(self, t: float) -> bool:
-        """imu/gyro_bias at up to gyro_bias_rate_hz (by stamp; a stamp going back publishes at once)."""
+        """imu/gyro_bias at up to gyro_bias_rate_hz, by the filter's clock ``t`` (s: the stamps, or constant_dt's
+        clock when the stamps are not used); a clock going back publishes at once."""
         if t - self._last_bias_t >= self._bias_period or t < self._last_bias_t:
             self._last_bias_t = t
             return True

@@ -113,10 +113,10 @@ def _stamp(msg, t_s):
 def make_faulty(src: Path, dst: Path) -> tuple[Path, dict[str, int]]:  # noqa: C901 - one list of faults, read top down
     """``src`` with NaN/Inf, zero vectors, corrupted messages (every field NaN; finite but absurd values: a gyro of
     1e200 rad/s, an accelerometer of 1e150 m/s²), duplicated and backward stamps (one of them a copy with a zero
-    accelerometer), a 30 s gap and 10 s of silent magnetometer injected; returns the bag and the counts of injected
-    invalid samples (``bad_gyro``: those whose gyro makes them skipped)."""
+    accelerometer), a lone stamp 100 s ahead, a 30 s gap and 10 s of silent magnetometer injected; returns the bag
+    and the counts of injected invalid samples (``bad_gyro``, ``bad_stamp``: those skipped for their gyro, stamp)."""
     k = {'imu': 0, 'mag': 0}
-    injected = {'nan_gyro': 0, 'inf_gyro': 0, 'huge_gyro': 0, 'all_nan': 0, 'dup': 0, 'back': 0}
+    injected = {'nan_gyro': 0, 'inf_gyro': 0, 'huge_gyro': 0, 'all_nan': 0, 'dup': 0, 'back': 0, 'ahead': 0}
     gap_s = 30.0
 
     def edit(topic, msg, t):  # noqa: C901 - the same list of faults
@@ -127,6 +127,12 @@ def make_faulty(src: Path, dst: Path) -> tuple[Path, dict[str, int]]:  # noqa: C
             if i > 10000:  # 30 s gap after ~35 s
                 _stamp(msg, st + gap_s)
                 t += int(gap_s * 1e9)
+            if i in (7000, 10001):
+                # Skipped: a lone stamp 100 s ahead (undone by the next sample) and the first sample after the gap
+                # (a stamp that far ahead is taken as a new timeline once the next sample confirms it).
+                injected['ahead'] += 1
+                if i == 7000:
+                    _stamp(msg, st + 100.0)
             if i % 997 == 5:
                 msg.angular_velocity.x = float('nan')
                 injected['nan_gyro'] += 1
@@ -180,6 +186,7 @@ def make_faulty(src: Path, dst: Path) -> tuple[Path, dict[str, int]]:  # noqa: C
 
     path = copy_bag(src, dst, edit=edit)
     injected['bad_gyro'] = injected['nan_gyro'] + injected['inf_gyro'] + injected['huge_gyro'] + injected['all_nan']
+    injected['bad_stamp'] = injected['dup'] + injected['back'] + injected['ahead']
     return path, injected
 
 

@@ -520,17 +520,19 @@ def test_live_node_survives_faults_and_answers_every_sample(faulty_sim):
             f'first differences at samples {diff[:5]} of {len(q_ref)}; diagnostics {d}'
     assert d['samples answered'] == str(res.n_imu_sent)
     assert int(d['skipped: skipped_bad_gyro']) == injected['bad_gyro']
-    assert int(d['skipped: skipped_stamp']) == injected['dup'] + injected['back']
+    assert int(d['skipped: skipped_stamp']) == injected['bad_stamp']
 
 
 def test_debug_topic_fixed_covariance_and_constant_dt(context, inputs):
     node = reliable_node(context, publish_debug_topics=True, orientation_stddev=0.02, constant_dt=1 / 286.0)
     h = Harness(context, node)
-    rpy = []
+    rpy, bias = [], []
     h.io.create_subscription(Vector3Stamped, 'imu/rpy/filtered', rpy.append, RELIABLE)
+    h.io.create_subscription(Vector3Stamped, 'imu/gyro_bias', bias.append, RELIABLE)
     try:
         h.wait_connected()
-        h.spin_until(lambda: h.io.count_publishers('imu/rpy/filtered') > 0 and node.pub_rpy.get_subscription_count() > 0)
+        h.spin_until(lambda: h.io.count_publishers('imu/rpy/filtered') > 0 and node.pub_rpy.get_subscription_count() > 0
+                     and node.pub_bias.get_subscription_count() > 0)
         # With constant_dt the header stamps are ignored: zeroed stamps must not stop the filter.
         msgs = [(topic, copy.deepcopy(msg)) for topic, msg in inputs[:1000]]
         for _, msg in msgs:
@@ -538,6 +540,10 @@ def test_debug_topic_fixed_covariance_and_constant_dt(context, inputs):
         h.feed(msgs, 500)
         assert h.spin_until(lambda: len(rpy) == 500)
         assert len(h.out) == 500
+        # The bias goes out at gyro_bias_rate_hz (50) of the filter's clock, not of the zeroed stamps (was: once).
+        # Every 6th sample (the first at least 20 ms of that clock after the last): 84 of 500.
+        h.spin_until(lambda: len(bias) >= 84, timeout=2.0)
+        assert len(bias) == 84, len(bias)
         # (Not compared with replay: with every stamp 0 the magnetometer pairing depends on delivery order.)
         cov = np.array([m.orientation_covariance for m in h.out])
         assert np.all(cov[:, [0, 4, 8]] == 0.02 * 0.02) and np.all(cov[:, [1, 2, 3, 5, 6, 7]] == 0.0)
