@@ -22,6 +22,9 @@ from .settings import AdapterSettings
 JUMP_BACK_RESET_S = 1.0
 #: ... and this many such samples in a row (one stray stamp is just skipped).
 JUMP_BACK_SAMPLES = 3
+#: Gain of the running share of samples that could not advance the filter (:attr:`ImuEngine.stale_share`): about
+#: the latest 1/this samples.
+STALE_SHARE_GAIN = 0.01
 #: A stamp this much (s) after the latest one, and beyond the filter's ``max_dt_s``, is a new timeline (a gap) only
 #: once the next sample continues from it; a lone one (a clock-sync step undone, a bad stamp) is skipped instead of
 #: re-initialising the filter and leaving every later sample "far behind".
@@ -71,6 +74,8 @@ class ImuEngine:
         self.n_resets_jump = 0
         #: samples answered with the current orientation although they could not advance the filter
         self.n_answered_stale = 0
+        #: share of the latest ~100 samples that could not advance the filter (running mean; 0 at the start)
+        self.stale_share = 0.0
         self._t_const = 0.0
         self._t_last = -math.inf
         #: the time the latest IMU sample was given to the filter at, s: its stamp, or the constant_dt clock
@@ -190,9 +195,13 @@ class ImuEngine:
             return self._stateless_output(t_s, gyr, acc, mag)
         status = f.update(t_s, gyr, acc, mag)
         if status >= ANSWERED_BELOW:
+            self.stale_share += STALE_SHARE_GAIN * (1.0 - self.stale_share)
             if not f.initialized:
                 return None
             self.n_answered_stale += 1
+        elif self.stale_share:
+            # Exactly 0 again once negligible, so the common path skips this.
+            self.stale_share = s if (s := self.stale_share * (1.0 - STALE_SHARE_GAIN)) > 1e-6 else 0.0
         return self._output(f.quaternion, status, gyr, acc)
 
     def _output(
@@ -232,6 +241,7 @@ class ImuEngine:
         magnetometer's floors (a heading never taken from a magnetometer: (π/2)²)."""
         f = self.filter
         status = f.update(t_s, gyr, acc, mag)
+        self.stale_share += STALE_SHARE_GAIN * (float(status >= ANSWERED_BELOW) - self.stale_share)
         if not f.initialized:
             return None
         # Usable or not by this sample's own values, as the filter's input rules judge them (not by the filter's

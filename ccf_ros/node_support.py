@@ -133,6 +133,15 @@ NO_INPUT_S = 1.0
 RATE_WINDOW_S = 2.0
 #: Messages lost upstream within this long (s) warn.
 LOSS_WARN_S = 10.0
+#: Stamp intervals of this many latest IMU samples make the statistics of the normal interval ...
+INTERVAL_WINDOW = 256
+#: ... taken again every this many samples (and first after INTERVAL_MIN): sorting each time would cost per message.
+INTERVAL_REFRESH = 32
+INTERVAL_MIN = 16
+#: More than this share of the latest samples not advancing the filter warns (the output is frozen).
+STALE_WARN = 0.5
+#: An interval longer than this many times the longest normal one (95th percentile) is a hole (messages lost).
+HOLE_FACTOR = 1.5
 
 
 class InputStats:
@@ -141,7 +150,11 @@ class InputStats:
     def __init__(self) -> None:
         self._arrivals: deque[float] = deque(maxlen=4096)
         self._last_stamp = -math.inf
+        #: the stamp intervals of the latest IMU samples, s, and how many came since the statistics were taken
+        self._intervals: deque[float] = deque(maxlen=INTERVAL_WINDOW)
+        self._n_since = 0
         self._period_s = 0.0
+        self._interval_hi_s = 0.0
         #: messages lost upstream (DDS drops under overload), estimated from holes in the IMU stamp sequence
         self.n_lost = 0
         #: ``now`` of the latest detected loss, of the latest IMU and magnetometer arrival (-inf: never)
@@ -154,22 +167,36 @@ class InputStats:
         self.n_unreadable = 0
 
     def on_imu(self, t: float, now: float) -> None:
-        """An IMU sample with stamp ``t`` (s) arrived at ``now``."""
+        """An IMU sample with stamp ``t`` (s) arrived at ``now``.
+
+        A hole is an interval longer than :data:`HOLE_FACTOR` times the window's longest normal one (its 95th
+        percentile), so stamps with jitter or in bursts (a driver that stamps a FIFO read, or on arrival) are not
+        holes; a hole of ``dt`` counts ``round(dt / period) - 1`` lost messages, ``period`` the mean normal interval.
+        """
         self._arrivals.append(now)
         self.last_imu = now
         self.n_imu += 1
         dt = t - self._last_stamp
         if 0.0 < dt < 1.0:
-            # Running estimate of the nominal period (follows a faster rate at once, a slower one slowly);
-            # a hole of k periods means k - 1 lost messages.
-            p = self._period_s
-            p = dt if p == 0.0 else min(p * 1.001, 0.99 * p + 0.01 * dt)
-            self._period_s = p
-            if dt > 1.5 * p:
-                self.n_lost += round(dt / p) - 1
+            hi = self._interval_hi_s
+            if hi and dt > HOLE_FACTOR * hi:
+                self.n_lost += max(0, round(dt / self._period_s) - 1)
                 self.last_loss = now
+            # Holes stay in the window: a lasting slower rate becomes the normal one within a refresh or two.
+            self._intervals.append(dt)
+            self._n_since += 1
+            if self._n_since >= INTERVAL_REFRESH or (not hi and len(self._intervals) >= INTERVAL_MIN):
+                self._refresh()
         if t > self._last_stamp:
             self._last_stamp = t
+
+    def _refresh(self) -> None:
+        s = sorted(self._intervals)
+        hi = s[int(0.95 * (len(s) - 1))]
+        normal = [x for x in s if x <= HOLE_FACTOR * hi]
+        self._period_s = sum(normal) / len(normal)
+        self._interval_hi_s = hi
+        self._n_since = 0
 
     def on_mag(self, now: float) -> None:
         """A magnetometer sample arrived at ``now``."""
@@ -183,7 +210,7 @@ class InputStats:
 
     @property
     def period_s(self) -> float:
-        """Estimated nominal IMU period from the stamps, s (0 before two samples)."""
+        """Estimated nominal IMU period from the stamps (mean normal interval), s (0 before INTERVAL_MIN samples)."""
         return self._period_s
 
 
@@ -211,7 +238,8 @@ def diagnostics(
     """The node's status from its input statistics, the engine (filter flags and counters) and the hold statistics.
 
     Rules, first match wins: ERROR no IMU input for more than :data:`NO_INPUT_S`, ERROR not initialised (no valid
-    accelerometer yet); WARN magnetometer in use but none for ``mag_timeout_s``, WARN magnetic disturbance, WARN
+    accelerometer yet); WARN more than :data:`STALE_WARN` of the latest samples could not advance the filter; WARN
+    magnetometer in use but none for ``mag_timeout_s``, WARN magnetic disturbance, WARN
     non-finite filter state (re-initialised), WARN messages lost upstream in the last :data:`LOSS_WARN_S`; else OK.
     """
     filt = engine.filter
@@ -225,6 +253,10 @@ def diagnostics(
         level, message = ERROR, f'no IMU input for more than {NO_INPUT_S:g} s'
     elif not flags.initialized:
         level, message = ERROR, 'waiting for a valid accelerometer sample'
+    elif engine.stale_share > STALE_WARN:
+        level, message = WARN, (
+            f'{engine.stale_share:.0%} of the latest samples could not advance the filter (repeated, backward or zero '
+            'stamps, or a bad gyro): the orientation is held; set constant_dt if the driver does not stamp messages')
     elif use_mag and mag_age > mag_timeout_s:
         since = f'for {mag_age:.1f} s' if math.isfinite(mag_age) else 'sample yet'
         level, message = WARN, f'no magnetometer {since}: heading runs on the gyro'
@@ -240,6 +272,7 @@ def diagnostics(
         'magnetometer samples in': str(stats.n_mag),
         'samples answered': str(engine.answered()),
         'samples answered with the current orientation (could not advance the filter)': str(engine.n_answered_stale),
+        'share of the latest samples that could not advance the filter': f'{engine.stale_share:.2f}',
         'messages lost upstream (estimated)': str(stats.n_lost),
         'unreadable messages dropped': str(stats.n_unreadable),
         'magnetometer age (s)': f'{mag_age:.2f}' if math.isfinite(mag_age) else 'never',

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
 from ccf_ros.core import make_filter
@@ -391,6 +392,30 @@ def test_input_stats_rate_and_messages_lost_from_stamp_holes():
     assert st.n_lost == 3
 
 
+
+def test_input_stats_take_jitter_bursts_and_a_slower_rate_for_no_losses():
+    """Stamps with jitter (a driver that stamps on arrival) or in bursts (a FIFO read) are not holes; a real hole
+    still is, and a switch to a slower rate costs a few false counts, not one per sample for a thousand samples."""
+    rng = np.random.default_rng(0)
+    t = np.sort(np.arange(12000) / 200.0 + rng.normal(0.0, 0.001, 12000))  # 200 Hz, 1 ms jitter (was 1927 lost)
+    st = InputStats()
+    for x in t:
+        st.on_imu(float(x), float(x))
+    assert st.n_lost <= 1 and st.period_s == pytest.approx(0.005, rel=0.01)  # measured 1 in 60 s
+    st = InputStats()
+    for i in range(15000):  # 250 Hz, 4 samples per read stamped together (was 5.8 million lost)
+        x = (i // 4) * 4 / 250.0 + (i % 4) * 1e-5
+        st.on_imu(x, x)
+    assert st.n_lost == 0
+    st = InputStats()
+    x = 0.0
+    for i in range(8000):
+        x += 1 / 400.0 if i < 4000 else 1 / 100.0
+        if i != 2000:  # one message lost
+            st.on_imu(x, x)
+    assert 1 <= st.n_lost <= 61  # 1 lost + 50 while the slower rate becomes the normal one (was ~1000)
+    assert st.period_s == pytest.approx(0.01, rel=1e-6)
+
 def _engine(samples=400, mag=True, acc=9.81):
     eng = ImuEngine(make_filter())
     for k in range(samples):
@@ -435,13 +460,13 @@ def test_diagnostics_levels_in_order_of_severity():
     d = _diag(st, eng, 10.75)
     assert d.level == WARN and 'non-finite 2 times' in d.message and d.values['non-finite state resets'] == '2'
     eng.filter.n_nonfinite_resets = 0
-    st.on_imu(stamp(1), 10.75)
-    st.on_imu(stamp(2), 10.75)
-    st.on_imu(stamp(5), 10.76)  # two lost
+    for k in range(1, 41):  # enough samples to know the normal interval
+        st.on_imu(stamp(k), 10.75)
+    st.on_imu(stamp(43), 10.76)  # two lost
     d = _diag(st, eng, 10.76)
     assert d.level == WARN and '(2 so far)' in d.message and d.values['messages lost upstream (estimated)'] == '2'
     # Losses warn for LOSS_WARN_S, the count stays.
-    st.on_imu(stamp(6), 10.76 + LOSS_WARN_S + 0.5)
+    st.on_imu(stamp(44), 10.76 + LOSS_WARN_S + 0.5)
     st.on_mag(10.76 + LOSS_WARN_S + 0.5)
     d = _diag(st, eng, 10.76 + LOSS_WARN_S + 0.6)
     assert d.level == OK and d.values['messages lost upstream (estimated)'] == '2'
@@ -467,3 +492,24 @@ def test_diagnostics_values_show_filter_flags_counters_and_hold_statistics():
     assert float(v['gyro bias norm (deg/s)']) == pytest.approx(bias_norm, abs=1e-3)
     assert float(v['gyro bias 1-sigma per axis (deg/s)']) == pytest.approx(
         math.degrees(eng.filter.gyro_bias_sigma_rad_s), abs=1e-3)
+
+
+def test_diagnostics_warn_while_most_samples_cannot_advance_the_filter():
+    """Zeroed or repeated stamps freeze the output (every sample answered with the held orientation): that is a
+    WARN naming constant_dt, not OK; it clears once the samples advance the filter again."""
+    st = InputStats()
+    eng = _engine()
+    st.on_imu(stamp(400), 20.0)
+    st.on_mag(20.0)
+    assert _diag(st, eng, 20.0).level == OK and eng.stale_share == 0.0
+    for _ in range(100):  # a driver that stopped stamping: the same stamp again and again
+        eng.on_mag(stamp(399), (0.0, 2e-5, -4e-5))
+        eng.on_imu(stamp(399), (0.0, 0.0, 0.2), (0.0, 0.0, 9.81))
+    d = _diag(st, eng, 20.0)
+    assert d.level == WARN and 'could not advance the filter' in d.message and 'constant_dt' in d.message
+    assert float(d.values['share of the latest samples that could not advance the filter']) == pytest.approx(
+        1 - 0.99 ** 100, abs=0.005)
+    for k in range(400, 600):
+        eng.on_mag(stamp(k), (0.0, 2e-5, -4e-5))
+        eng.on_imu(stamp(k), (0.0, 0.0, 0.0), (0.0, 0.0, 9.81))
+    assert _diag(st, eng, 20.0).level == OK
