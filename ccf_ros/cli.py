@@ -169,6 +169,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 def cmd_play(args: argparse.Namespace) -> int:
     if not args.rate > 0:
         raise ParameterError(f'--rate must be > 0, got {args.rate!r}')
+    if not 0 <= args.wait_for_subscribers < float('inf'):
+        raise ParameterError(f'--wait-for-subscribers must be a finite number >= 0, got {args.wait_for_subscribers!r}')
     _need_rclpy('ccf play')
     import rclpy
     from rclpy.executors import ExternalShutdownException
@@ -178,13 +180,14 @@ def cmd_play(args: argparse.Namespace) -> int:
 
     topics = [t for t in (args.topics or '').split(',') if t] or None
     types, messages = load_messages(args.bag, topics)
-    print(f'playing {len(messages)} messages on {len(types)} topics at {args.rate:g}x' + (' (loop)' if args.loop else ''))
+    print(f'playing {len(messages)} messages on {len(types)} topics at {args.rate:g}x' + (' (loop)' if args.loop else '')
+          + (f', after up to {args.wait_for_subscribers:g} s for a subscriber on each' if args.wait_for_subscribers else ''))
     rclpy.init()
     node = rclpy.create_node('ccf_play')
     bar = tqdm(total=None if args.loop else len(messages), unit='msg', disable=None, mininterval=0.5)
     try:
         n = play(node, types, messages, rate=args.rate, loop=args.loop, clock=args.clock,
-                 should_stop=lambda: not rclpy.ok(), progress=bar.update)
+                 should_stop=lambda: not rclpy.ok(), progress=bar.update, wait_matched_s=args.wait_for_subscribers)
     except (KeyboardInterrupt, ExternalShutdownException):
         n = bar.n
     finally:
@@ -252,8 +255,28 @@ UNIT_SUFFIXES = (
 )
 
 
+#: Units of the parameters whose names keep imu_tools' or the paper's spelling (no unit suffix).
+UNITS_BY_NAME = {
+    'constant_dt': 's',
+    'orientation_stddev': 'rad',
+    'mag_bias_x': 'T',
+    'mag_bias_y': 'T',
+    'mag_bias_z': 'T',
+    'yaw_offset': 'rad',
+    'declination': 'rad',
+    'madgwick_beta': 'rad/s',
+    'kp': '1/s',
+    'mahony_kp': '1/s',
+    'ki': '1/s²',
+    'mahony_ki': '1/s²',
+}
+
+
 def unit_of(name: str) -> str:
-    """The unit a parameter's name ends with (see :data:`UNIT_SUFFIXES`), ``-`` if none."""
+    """A parameter's unit: :data:`UNITS_BY_NAME`, else the one its name ends with (:data:`UNIT_SUFFIXES`), else
+    ``-`` (dimensionless, a flag or a choice)."""
+    if name in UNITS_BY_NAME:
+        return UNITS_BY_NAME[name]
     return next((unit for suffix, unit in UNIT_SUFFIXES if name.endswith(suffix)), '-')
 
 
@@ -390,6 +413,9 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument('--loop', action='store_true', help='start over at the end (the node resets on the jump back)')
     pl.add_argument('--topics', help='comma-separated topics to play (if not given: all)')
     pl.add_argument('--clock', action='store_true', help='also publish /clock from the recording times')
+    pl.add_argument('--wait-for-subscribers', type=float, default=5.0, metavar='S',
+                    help='first wait up to S s until each topic has a subscriber: DDS drops what is sent before, and '
+                    "the first samples are the ones a filter starts from (0: don't wait)")
     pl.set_defaults(func=cmd_play)
 
     d = add('demo', 'simulate, filter, evaluate and plot: the main job on built-in data')

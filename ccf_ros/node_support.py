@@ -16,6 +16,7 @@ from collections import deque
 from collections.abc import Iterable
 from typing import Any, NamedTuple
 
+from .core.base import per_axis
 from .core.quaternion import WORLD_FRAMES, quat_from_acc_mag_scalar, quat_mul_scalar, rpy_of
 from .engine import ImuEngine
 from .errors import ParameterError
@@ -31,6 +32,9 @@ PER_AXIS = frozenset({'kp', 'ki', 'alpha', 'lcf_alpha'})
 #: core validates more precisely). Not listed: :data:`DEFAULT_RANGE`.
 PARAMETER_RANGES: dict[str, tuple[float, float]] = {
     'alpha': (0.0, 1.0),
+    'lcf_alpha': (0.0, 1.0),
+    'kp': (0.0, 1e6),
+    'ki': (0.0, 1e6),
     'mag_norm_tol': (0.0, 10.0),
     'mag_dip_tol_rad': (0.0, math.pi),
     'constant_dt': (0.0, 10.0),
@@ -83,7 +87,14 @@ def coerce_parameter(name: str, value: Any, default: Any) -> Any:
         ParameterError: not a number (or list of numbers), or out of range; the message names the parameter.
     """
     if name in PER_AXIS:
-        return float(value) if _is_number(value) else _numbers(name, value)
+        v = float(value) if _is_number(value) else _numbers(name, value)
+        # Checked here whichever filter is selected: a malformed value for an inactive one would otherwise be
+        # taken, and refuse a later, unrelated change (the selection of that filter).
+        try:
+            per_axis(name, v, *parameter_range(name))
+        except ValueError as err:
+            raise ParameterError(str(err)) from None
+        return v
     if isinstance(default, tuple):
         return _numbers(name, value)
     if isinstance(default, float):

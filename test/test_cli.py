@@ -309,10 +309,17 @@ def test_params_reads_the_settings_when_it_runs(monkeypatch, capsys):
     ('name', 'unit'),
     [('tau_acc_s', 's'), ('rest_gyro_rad_s', 'rad/s'), ('rest_acc_m_s2', 'm/s²'), ('gyro_bias_rate_hz', 'Hz'),
      ('mag_dip_tol_rad', 'rad'), ('gyro_arw_rad_sqrt_s', 'rad/√s'), ('bias_walk_rad_s_sqrt_s', '(rad/s)/√s'),
-     ('alpha', '-'), ('use_mag', '-'), ('constant_dt', '-'), ('mag_bias_x', '-')],
+     ('alpha', '-'), ('use_mag', '-'), ('constant_dt', 's'), ('mag_bias_x', 'T'), ('declination', 'rad'),
+     ('ki', '1/s²'), ('madgwick_beta', 'rad/s')],
 )
-def test_unit_from_the_name_suffix(name, unit):
+def test_unit_from_the_name_or_its_suffix(name, unit):
     assert unit_of(name) == unit
+
+
+def test_every_name_with_a_listed_unit_is_a_parameter():
+    from ccf_ros.cli import UNITS_BY_NAME
+
+    assert set(UNITS_BY_NAME) <= set(settings.all_defaults())
 
 
 def test_params_yaml_prints_config_yaml(capsys):

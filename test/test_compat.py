@@ -114,7 +114,9 @@ def test_real_parameters_take_integers_and_refuse_non_numbers():
     assert coerce_parameter('use_mag', True, True) is True and coerce_parameter('qos_depth', 7, 50) == 7
     for name, value in (('tau_acc_s', 'fast'), ('tau_acc_s', True), ('tau_acc_s', None), ('tau_acc_s', math.nan),
                         ('yaw_offset', 7.0), ('mag_bias_y', -10.5), ('tau_acc_s', -1), ('mag_soft_iron', 'abc'),
-                        ('ekf_q', [1.0, 'x', 2.0]), ('kp', [True, 1, 2])):
+                        ('ekf_q', [1.0, 'x', 2.0]), ('kp', [True, 1, 2]),
+                        # per-axis gains of a filter that is not selected: checked all the same
+                        ('kp', [1, 2]), ('ki', [1.0, 2.0, 3.0, 4.0]), ('alpha', [0.5, 1.5, 0.5]), ('lcf_alpha', -0.1)):
         with pytest.raises(ParameterError, match=name):
             coerce_parameter(name, value, all_defaults()[name])
     # imu_tools' own ranges: signed angles and offsets.

@@ -317,12 +317,16 @@ def test_calibrate_mag_refuses_to_overwrite(distorted_bag, tmp_path, capsys):
     assert [p.name for p in tmp_path.iterdir()] == ['mag_calibration.yaml']
 
 
-def test_calibrate_mag_warns_on_low_coverage(monkeypatch, tmp_path, capsys):
+def test_calibrate_mag_refuses_low_coverage_unless_forced(monkeypatch, tmp_path, capsys):
     monkeypatch.setattr(magcal, 'read_mag', lambda bag, topic: distort(one_axis_motion(10.0), W, seed=13))
     args = cli(['unused.bag', '-o', str(tmp_path / 'cal.yaml')])
+    with pytest.raises(CalibrationError, match=r'rotate the sensor through more orientations.*--force'):
+        args.func(args)
+    assert not (tmp_path / 'cal.yaml').exists()
+    args = cli(['unused.bag', '-o', str(tmp_path / 'cal.yaml'), '--force'])
     assert args.func(args) == 0
     text = capsys.readouterr().out
-    assert 'warning: coverage' in text and 'rotate the sensor through more orientations' in text
+    assert 'warning: coverage' in text and (tmp_path / 'cal.yaml').exists()
 
 
 def test_calibrate_mag_help_shows_defaults_and_bad_field_norm_is_refused(distorted_bag, tmp_path):

@@ -19,8 +19,19 @@ from ccf_ros.offline.bagio import read_imu_arrays
 from ccf_ros.offline.simulate import MAG_WORLD, generate
 from ccf_ros.study import lscf
 from ccf_ros.study.datasets import load_bag, score, total_error_rad
-from ccf_ros.study.labels import CCF_EULER, CCF_QUATERNION, CKF, EKF, EULER, FORMULATIONS, MADGWICK, MAHONY, NCF
-from ccf_ros.study.verdicts import claim4_accuracy, claim5_cost
+from ccf_ros.study.labels import (
+    CCF_EULER,
+    CCF_QUATERNION,
+    CKF,
+    EKF,
+    EULER,
+    FORMULATIONS,
+    MADGWICK,
+    MAHONY,
+    NCF,
+    QUATERNION,
+)
+from ccf_ros.study.verdicts import claim4_accuracy, claim5_cost, claim6_long_run
 
 BASELINES = ('lcf', 'ncf', 'ekf', 'ckf')
 
@@ -241,3 +252,13 @@ def test_claim_verdicts_follow_their_thresholds():
     assert v.verdict == 'holds for the CKF only'
     assert v.as_dict() == {'claim': 5, 'formulation': EULER, 'verdict': v.verdict, 'text': v.text,
                            'ekf_ratio': 4.0, 'ckf_ratio': 9.0}
+
+
+def test_claim6_needs_a_run_long_enough_to_see_a_drift():
+    def long_run(rmse):
+        return {'long_run': {'filters': {CCF_QUATERNION: {'rmse_total_deg': rmse, 'window_s': 100.0}}}}
+
+    # One 5 s window inside the start-up rest used to 'hold': early and late were the same window.
+    assert claim6_long_run(long_run([2.8]), QUATERNION).verdict.startswith('not measured: 1 window(s) of 100 s')
+    assert claim6_long_run(long_run([1.0] * 72), QUATERNION).verdict == 'holds (over 2 h)'
+    assert claim6_long_run(long_run([1.0] * 60 + [3.0] * 12), QUATERNION).verdict == 'does not hold: the error grows'

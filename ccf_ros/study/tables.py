@@ -134,7 +134,7 @@ def compute_time_table(results: dict[str, Any]) -> str:
 def bode_table(results: dict[str, Any]) -> str:
     """Figs 2/4/8 as a table: largest deviation of the measured response from the transfer function, per case."""
     b = results['bode']
-    return table(['case', f'max |dB error| below {b["rate_hz"] / 100:.2f} Hz', 'max |phase error|, deg'],
+    return table(['case', f'max abs. dB error below {b["rate_hz"] / 100:.2f} Hz', 'max abs. phase error, deg'],
                  [[c['label'], f'{c["max_abs_db_error"]:.3f}', f'{c["max_abs_phase_error_deg"]:.2f}'] for c in b['cases']])
 
 
