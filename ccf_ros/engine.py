@@ -74,12 +74,14 @@ class ImuEngine:
         self.n_resets_jump = 0
         #: samples answered with the current orientation although they could not advance the filter
         self.n_answered_stale = 0
-        #: share of the latest ~100 samples that could not advance the filter (running mean; 0 at the start)
+        #: share of the latest ~100 answers given with a held orientation (running mean; 0 at the start)
         self.stale_share = 0.0
         self._t_const = 0.0
         self._t_last = -math.inf
         #: the time the latest IMU sample was given to the filter at, s: its stamp, or the constant_dt clock
         self.clock_s = -math.inf
+        #: the (calibrated) magnetometer sample paired with the latest IMU sample (None: none)
+        self.paired_mag: Vec3 | None = None
         self._n_far_back = 0
         #: stamp of a lone sample far ahead of _t_last, waiting for the next one to confirm it (None: none)
         self._t_ahead: float | None = None
@@ -184,7 +186,7 @@ class ImuEngine:
             self._n_far_back = 0
             if t_s > self._t_last:
                 self._t_last = t_s
-        mag = self.pairer.get(t_s)
+        mag = self.paired_mag = self.pairer.get(t_s)
         if self._constant_dt > 0.0:
             # Fixed sample period: a synthetic clock advanced per message replaces the header stamps.
             self._t_const += self._constant_dt
@@ -195,9 +197,9 @@ class ImuEngine:
             return self._stateless_output(t_s, gyr, acc, mag)
         status = f.update(t_s, gyr, acc, mag)
         if status >= ANSWERED_BELOW:
-            self.stale_share += STALE_SHARE_GAIN * (1.0 - self.stale_share)
             if not f.initialized:
                 return None
+            self.stale_share += STALE_SHARE_GAIN * (1.0 - self.stale_share)
             self.n_answered_stale += 1
         elif self.stale_share:
             # Exactly 0 again once negligible, so the common path skips this.
@@ -241,7 +243,6 @@ class ImuEngine:
         magnetometer's floors (a heading never taken from a magnetometer: (π/2)²)."""
         f = self.filter
         status = f.update(t_s, gyr, acc, mag)
-        self.stale_share += STALE_SHARE_GAIN * (float(status >= ANSWERED_BELOW) - self.stale_share)
         if not f.initialized:
             return None
         # Usable or not by this sample's own values, as the filter's input rules judge them (not by the filter's
@@ -259,7 +260,11 @@ class ImuEngine:
                 q = level_quat(*acc)
                 self._stateless_heading = False
             self._stateless_q = q
-        if self._stateless_q is None or not acc_used:
+        # Held (stale) only if this sample's own accelerometer could not give the orientation: a sample the filter
+        # skipped still gets its own.
+        held = self._stateless_q is None or not acc_used
+        self.stale_share += STALE_SHARE_GAIN * (float(held) - self.stale_share)
+        if held:
             self.n_answered_stale += 1
         if self._stateless_q is None:
             return None

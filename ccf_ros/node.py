@@ -517,8 +517,9 @@ class CcfNode(Node):
         if self.pub_rpy is not None:
             self.pub_rpy.publish(stamped(rpy_of(from_xyzw(*out.orientation_xyzw))))
         if self.pub_rpy_raw is not None and self._use_mag:
-            # The magnetometer sample the engine paired with this one (calibrated; asking again changes nothing).
-            rpy = raw_rpy(acc, self.engine.pairer.get(t), self._world_frame)
+            # The magnetometer sample the engine paired with this one (calibrated; asking the pairer again with the
+            # header stamp could consume samples the engine did not, after a stamp it skipped as far ahead).
+            rpy = raw_rpy(acc, self.engine.paired_mag, self._world_frame)
             if rpy is not None:
                 self.pub_rpy_raw.publish(stamped(rpy))
         if self._steady and self.pub_steady is not None:

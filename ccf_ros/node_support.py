@@ -149,10 +149,12 @@ INTERVAL_WINDOW = 256
 #: ... taken again every this many samples (and first after INTERVAL_MIN): sorting each time would cost per message.
 INTERVAL_REFRESH = 32
 INTERVAL_MIN = 16
-#: More than this share of the latest samples not advancing the filter warns (the output is frozen).
+#: More than this share of the latest answers with a held orientation warns (the output is frozen).
 STALE_WARN = 0.5
-#: An interval longer than this many times the longest normal one (95th percentile) is a hole (messages lost).
+#: An interval longer than this many times the nominal one is a hole (messages lost) ...
 HOLE_FACTOR = 1.5
+#: ... and longer than the nominal one by this many robust standard deviations of the nominal intervals (jitter).
+HOLE_SIGMAS = 4.0
 
 
 class InputStats:
@@ -165,7 +167,9 @@ class InputStats:
         self._intervals: deque[float] = deque(maxlen=INTERVAL_WINDOW)
         self._n_since = 0
         self._period_s = 0.0
-        self._interval_hi_s = 0.0
+        self._nominal_s = 0.0
+        self._hole_s = 0.0
+        self._per_read = 1
         #: messages lost upstream (DDS drops under overload), estimated from holes in the IMU stamp sequence
         self.n_lost = 0
         #: ``now`` of the latest detected loss, of the latest IMU and magnetometer arrival (-inf: never)
@@ -180,33 +184,44 @@ class InputStats:
     def on_imu(self, t: float, now: float) -> None:
         """An IMU sample with stamp ``t`` (s) arrived at ``now``.
 
-        A hole is an interval longer than :data:`HOLE_FACTOR` times the window's longest normal one (its 95th
-        percentile), so stamps with jitter or in bursts (a driver that stamps a FIFO read, or on arrival) are not
-        holes; a hole of ``dt`` counts ``round(dt / period) - 1`` lost messages, ``period`` the mean normal interval.
+        The statistics of the window (:meth:`_refresh`): the nominal interval ``L`` between stamps (between reads, for
+        a driver that stamps a FIFO read of ``m`` samples together) and ``m``. A hole is an interval longer than
+        :data:`HOLE_FACTOR` ``L`` and than ``L`` plus :data:`HOLE_SIGMAS` robust deviations of the intervals, and
+        counts ``(round(dt / L) - 1) m`` lost messages; jittered or bursty stamps are not holes.
         """
         self._arrivals.append(now)
         self.last_imu = now
         self.n_imu += 1
         dt = t - self._last_stamp
         if 0.0 < dt < 1.0:
-            hi = self._interval_hi_s
-            if hi and dt > HOLE_FACTOR * hi:
-                self.n_lost += max(0, round(dt / self._period_s) - 1)
+            nominal = self._nominal_s
+            if nominal and dt > self._hole_s:
+                self.n_lost += (round(dt / nominal) - 1) * self._per_read
                 self.last_loss = now
             # Holes stay in the window: a lasting slower rate becomes the normal one within a refresh or two.
             self._intervals.append(dt)
             self._n_since += 1
-            if self._n_since >= INTERVAL_REFRESH or (not hi and len(self._intervals) >= INTERVAL_MIN):
+            if self._n_since >= INTERVAL_REFRESH or (not nominal and len(self._intervals) >= INTERVAL_MIN):
                 self._refresh()
         if t > self._last_stamp:
             self._last_stamp = t
 
     def _refresh(self) -> None:
+        """The nominal interval: the median of the window's intervals that are not the short ones inside a burst
+        (below a third of the 95th percentile), robust to jitter, to bursts and to losses of up to half the
+        messages; samples per read: the nominal interval over the mean of the intervals that are not holes."""
         s = sorted(self._intervals)
-        hi = s[int(0.95 * (len(s) - 1))]
-        normal = [x for x in s if x <= HOLE_FACTOR * hi]
+        p95 = s[int(0.95 * (len(s) - 1))]
+        long = [x for x in s if x >= p95 / 3.0]
+        nominal = long[len(long) // 2]
+        # Jitter: a hole must also stand HOLE_SIGMAS robust deviations (1.4826 MAD) of the nominal intervals above
+        # them, or a driver that stamps on arrival would report losses all the time.
+        spread = 1.4826 * sorted(abs(x - nominal) for x in long)[len(long) // 2]
+        self._hole_s = nominal + max((HOLE_FACTOR - 1.0) * nominal, HOLE_SIGMAS * spread)
+        normal = [x for x in s if x <= self._hole_s]
         self._period_s = sum(normal) / len(normal)
-        self._interval_hi_s = hi
+        self._per_read = max(1, round(nominal / self._period_s))
+        self._nominal_s = nominal
         self._n_since = 0
 
     def on_mag(self, now: float) -> None:
@@ -249,7 +264,7 @@ def diagnostics(
     """The node's status from its input statistics, the engine (filter flags and counters) and the hold statistics.
 
     Rules, first match wins: ERROR no IMU input for more than :data:`NO_INPUT_S`, ERROR not initialised (no valid
-    accelerometer yet); WARN more than :data:`STALE_WARN` of the latest samples could not advance the filter; WARN
+    accelerometer yet); WARN more than :data:`STALE_WARN` of the latest answers held the orientation; WARN
     magnetometer in use but none for ``mag_timeout_s``, WARN magnetic disturbance, WARN
     non-finite filter state (re-initialised), WARN messages lost upstream in the last :data:`LOSS_WARN_S`; else OK.
     """
@@ -266,8 +281,8 @@ def diagnostics(
         level, message = ERROR, 'waiting for a valid accelerometer sample'
     elif engine.stale_share > STALE_WARN:
         level, message = WARN, (
-            f'{engine.stale_share:.0%} of the latest samples could not advance the filter (repeated, backward or zero '
-            'stamps, or a bad gyro): the orientation is held; set constant_dt if the driver does not stamp messages')
+            f'{engine.stale_share:.0%} of the latest samples were answered with a held orientation (repeated, '
+            'backward or zero stamps, or a bad gyro); set constant_dt if the driver does not stamp messages')
     elif use_mag and mag_age > mag_timeout_s:
         since = f'for {mag_age:.1f} s' if math.isfinite(mag_age) else 'sample yet'
         level, message = WARN, f'no magnetometer {since}: heading runs on the gyro'
@@ -283,7 +298,7 @@ def diagnostics(
         'magnetometer samples in': str(stats.n_mag),
         'samples answered': str(engine.answered()),
         'samples answered with the current orientation (could not advance the filter)': str(engine.n_answered_stale),
-        'share of the latest samples that could not advance the filter': f'{engine.stale_share:.2f}',
+        'share of the latest answers with a held orientation': f'{engine.stale_share:.2f}',
         'messages lost upstream (estimated)': str(stats.n_lost),
         'unreadable messages dropped': str(stats.n_unreadable),
         'magnetometer age (s)': f'{mag_age:.2f}' if math.isfinite(mag_age) else 'never',

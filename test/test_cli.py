@@ -413,6 +413,8 @@ def test_a_bag_without_the_magnetometer_topic_replays_6d_with_a_warning(sim_bag,
     assert 'warning: no /imu/mag in the bag: 6-D' in err
     assert main(['replay', str(bag), '-o', str(tmp_path / 'out2'), '--no-mag']) == 0
     assert 'warning' not in capsys.readouterr().err
+    assert main(['replay', str(bag), '-o', str(tmp_path / 'out5'), '--param', 'use_mag=false']) == 0
+    assert 'warning' not in capsys.readouterr().err  # switched off in the settings: nothing to warn about
     # Named by the user: a typo must not pass as a 6-D run.
     assert main(['replay', str(bag), '-o', str(tmp_path / 'out3'), '--mag-topic', '/imu/mag']) == 2
     assert 'no messages on /imu/mag' in one_line(capsys.readouterr().err)  # the topic is there, but empty

@@ -394,26 +394,38 @@ def test_input_stats_rate_and_messages_lost_from_stamp_holes():
 
 
 def test_input_stats_take_jitter_bursts_and_a_slower_rate_for_no_losses():
-    """Stamps with jitter (a driver that stamps on arrival) or in bursts (a FIFO read) are not holes; a real hole
-    still is, and a switch to a slower rate costs a few false counts, not one per sample for a thousand samples."""
+    """Stamps with jitter (a driver that stamps on arrival) or in bursts (a FIFO read) are not holes; real holes
+    still are, one by one and under a lasting loss; a switch to a slower rate costs a few false counts, not one per
+    sample for a thousand samples."""
     rng = np.random.default_rng(0)
-    t = np.sort(np.arange(12000) / 200.0 + rng.normal(0.0, 0.001, 12000))  # 200 Hz, 1 ms jitter (was 1927 lost)
-    st = InputStats()
-    for x in t:
-        st.on_imu(float(x), float(x))
-    assert st.n_lost <= 1 and st.period_s == pytest.approx(0.005, rel=0.01)  # measured 1 in 60 s
-    st = InputStats()
-    for i in range(15000):  # 250 Hz, 4 samples per read stamped together (was 5.8 million lost)
-        x = (i // 4) * 4 / 250.0 + (i % 4) * 1e-5
-        st.on_imu(x, x)
-    assert st.n_lost == 0
+
+    def lost(t) -> InputStats:
+        st = InputStats()
+        for x in t:
+            st.on_imu(float(x), float(x))
+        return st
+
+    jitter = np.sort(np.arange(12000) / 200.0 + rng.normal(0.0, 0.001, 12000))  # 200 Hz, 1 ms jitter
+    st = lost(jitter)
+    assert st.n_lost <= 1 and st.period_s == pytest.approx(0.005, rel=0.01)  # measured 1 (was 1927)
+    keep = rng.random(6000) > 0.1  # 100 Hz, 10 % of the messages dropped, at random
+    keep[:50] = True
+    st = lost(np.arange(6000)[keep] / 100.0)
+    assert st.n_lost == (~keep).sum() and st.period_s == pytest.approx(0.01, rel=1e-9)
+    reads = np.repeat(np.arange(3750) * 4 / 250.0, 4) + np.tile([0.0, 1e-5, 2e-5, 3e-5], 3750)  # 250 Hz, 4 per read
+    assert lost(reads).n_lost == 0  # was 5.8 million
+    keep = np.ones(15000, dtype=bool)
+    keep[4000:4004] = keep[8000:8004] = False  # two reads lost
+    assert lost(reads[keep]).n_lost == 8
     st = InputStats()
     x = 0.0
     for i in range(8000):
         x += 1 / 400.0 if i < 4000 else 1 / 100.0
         if i != 2000:  # one message lost
             st.on_imu(x, x)
-    assert 1 <= st.n_lost <= 61  # 1 lost + 50 while the slower rate becomes the normal one (was ~1000)
+        if i == 2001:
+            assert st.n_lost == 1
+    assert st.n_lost <= 66  # 1 + 54 while the slower rate becomes the normal one (was ~1000)
     assert st.period_s == pytest.approx(0.01, rel=1e-6)
 
 def _engine(samples=400, mag=True, acc=9.81):
@@ -506,10 +518,24 @@ def test_diagnostics_warn_while_most_samples_cannot_advance_the_filter():
         eng.on_mag(stamp(399), (0.0, 2e-5, -4e-5))
         eng.on_imu(stamp(399), (0.0, 0.0, 0.2), (0.0, 0.0, 9.81))
     d = _diag(st, eng, 20.0)
-    assert d.level == WARN and 'could not advance the filter' in d.message and 'constant_dt' in d.message
-    assert float(d.values['share of the latest samples that could not advance the filter']) == pytest.approx(
+    assert d.level == WARN and 'held orientation' in d.message and 'constant_dt' in d.message
+    assert float(d.values['share of the latest answers with a held orientation']) == pytest.approx(
         1 - 0.99 ** 100, abs=0.005)
     for k in range(400, 600):
         eng.on_mag(stamp(k), (0.0, 2e-5, -4e-5))
         eng.on_imu(stamp(k), (0.0, 0.0, 0.0), (0.0, 0.0, 9.81))
     assert _diag(st, eng, 20.0).level == OK
+
+
+def test_stateless_answers_and_samples_before_the_start_are_not_held_outputs():
+    """With stateless, a sample the filter skips (repeated stamp) still gets its own orientation: no held-output
+    WARN; nor do the samples before the first valid accelerometer count (there is no output to hold yet)."""
+    from ccf_ros.settings import build
+
+    eng = ImuEngine(*build({'stateless': True}))
+    for k in range(100):
+        eng.on_mag(stamp(0), (0.0, 2e-5, -4e-5))
+        eng.on_imu(stamp(0), (0.0, 0.0, 0.0), (0.0, 0.1 * k, 9.81))  # zeroed stamps, the sensor tilting
+    assert eng.stale_share == 0.0 and eng.n_answered_stale == 0
+    eng = _engine(samples=200, acc=0.0)  # no valid accelerometer yet
+    assert eng.stale_share == 0.0

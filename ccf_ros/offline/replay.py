@@ -298,7 +298,7 @@ class _Replayer:
         n_mag = sum(c.msgcount for c in mag_conns)
         if topics.mag and topics.mag_required and mag_conns and not n_mag:
             raise BagError(f'{bag}: no messages on {topics.mag}')
-        if topics.mag and not n_mag:
+        if topics.mag and not n_mag and getattr(engine.filter.params, 'use_mag', True):
             self.warnings.append(f'no {topics.mag} in the bag: 6-D, heading relative to the start (--mag-topic names '
                                  'another topic, --no-mag silences this)')
         self._reader = reader
