@@ -62,6 +62,7 @@ def play(
     With ``wait_matched_s`` > 0 it first waits (up to that long, s) until every topic's publisher is matched with
     a subscriber: DDS drops what a publisher sends before it is matched, and each topic matches on its own.
     """
+    from rclpy.duration import Duration
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
     if not rate > 0:
@@ -104,4 +105,8 @@ def play(
             if progress is not None:
                 progress(1)
         if not loop:
+            # Reliable writers still hold what the readers have not acknowledged: exiting now would drop the last
+            # messages (seen: the last IMU and magnetometer sample of a bag).
+            for pub in pubs.values():
+                pub.wait_for_all_acked(Duration(seconds=2))
             return n
