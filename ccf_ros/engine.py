@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-from .core.base import ACC_MAX_M_S2, ANSWERED_BELOW, OrientationFilter, Status
+from .core.base import ANSWERED_BELOW, OrientationFilter, Status, acc_usable, mag_usable
 from .core.ccf import GRAVITY_M_S2, CcfParams
 from .core.pairing import MagPairer
 from .core.quaternion import WORLD_FRAMES, level_quat, quat_from_acc_mag_scalar, quat_mul_scalar, relevel, to_xyzw
@@ -22,7 +22,7 @@ from .settings import AdapterSettings
 JUMP_BACK_RESET_S = 1.0
 #: ... and this many such samples in a row (one stray stamp is just skipped).
 JUMP_BACK_SAMPLES = 3
-#: Gain of the running share of samples that could not advance the filter (:attr:`ImuEngine.stale_share`): about
+#: Gain of the running share of answers with a held orientation (:attr:`ImuEngine.stale_share`): about
 #: the latest 1/this samples.
 STALE_SHARE_GAIN = 0.01
 #: A stamp this much (s) after the latest one, and beyond the filter's ``max_dt_s``, is a new timeline (a gap) only
@@ -32,13 +32,6 @@ JUMP_AHEAD_S = 1.0
 
 Vec3 = tuple[float, float, float]
 
-
-_ACC_MAX2 = ACC_MAX_M_S2 * ACC_MAX_M_S2
-
-
-def _norm2_within(v: Vec3, lo: float, hi: float) -> bool:
-    """``lo < |v|² < hi``; False for NaN (comparisons with NaN are False)."""
-    return lo < v[0] * v[0] + v[1] * v[1] + v[2] * v[2] < hi
 
 class Output(NamedTuple):
     """One answered IMU sample.
@@ -247,10 +240,10 @@ class ImuEngine:
             return None
         # Usable or not by this sample's own values, as the filter's input rules judge them (not by the filter's
         # flags: a sample it skipped, for a bad gyro or a repeated stamp, was never looked at and left them stale).
-        acc_used = _norm2_within(acc, 1e-12, _ACC_MAX2)
+        acc_used = acc_usable(acc)
         if acc_used:
             q = None
-            if mag is not None and f.params.use_mag and _norm2_within(mag, 1e-30, math.inf):
+            if mag is not None and f.params.use_mag and mag_usable(mag):
                 q = quat_from_acc_mag_scalar(*acc, *mag, True)
             if q is not None:
                 self._stateless_heading = True

@@ -52,6 +52,21 @@ GYRO_MAX_RAD_S = 1000.0
 ACC_MAX_M_S2 = 1.0e4
 _GYRO_MAX2 = GYRO_MAX_RAD_S * GYRO_MAX_RAD_S
 _ACC_MAX2 = ACC_MAX_M_S2 * ACC_MAX_M_S2
+#: Squared norms below these are zero vectors: no direction (accelerometer m²/s⁴; magnetometer in any unit²).
+_ACC_MIN2 = 1e-12
+_MAG_MIN2 = 1e-30
+
+
+def acc_usable(acc: Sequence[float]) -> bool:
+    """Whether :meth:`OrientationFilter.update` uses this accelerometer sample (m/s², 3 values): finite, not zero,
+    not beyond :data:`ACC_MAX_M_S2`. (``update`` applies the same rule inline.)"""
+    return _ACC_MIN2 < acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2] < _ACC_MAX2
+
+
+def mag_usable(mag: Sequence[float]) -> bool:
+    """Whether :meth:`OrientationFilter.update` can use this magnetometer sample (any unit, 3 values): finite and
+    not zero. (``update`` applies the same rule inline.)"""
+    return _MAG_MIN2 < mag[0] * mag[0] + mag[1] * mag[1] + mag[2] * mag[2] < _INF
 
 
 class FilterFlags(NamedTuple):
@@ -266,14 +281,14 @@ class OrientationFilter(ABC):
         self._t_last = t_s
         ax, ay, az = acc
         acc_n2 = ax * ax + ay * ay + az * az
-        if not 1e-12 < acc_n2 < _ACC_MAX2:
+        if not _ACC_MIN2 < acc_n2 < _ACC_MAX2:
             acc_n2 = 0.0
             self.n_no_acc += 1
             self._t_no_acc = t_s
         if mag is not None and self._use_mag:
             mx, my, mz = mag
             mag_n2 = mx * mx + my * my + mz * mz
-            if not 1e-30 < mag_n2 < _INF:
+            if not _MAG_MIN2 < mag_n2 < _INF:
                 mag_n2 = 0.0
                 self.n_no_mag += 1
                 self._t_no_mag = t_s
