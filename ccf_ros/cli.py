@@ -88,8 +88,9 @@ def _writable(path: str | Path, what: str, overwrite: bool) -> Path:
         raise CcfError(f'cannot write {what} {p}: no such directory {p.parent}')
     if p.is_dir():
         raise CcfError(f'cannot write {what} {p}: it is a folder')
-    if p.exists() and not overwrite:
-        raise CcfError(f'{p} exists; pass --overwrite to replace it')
+    from .offline.bagio import refuse_existing
+
+    refuse_existing(p, overwrite, bag=False)  # the rule of every output file: replaced only with --overwrite
     return p
 
 
