@@ -192,7 +192,8 @@ def _cascade_response(p: CcfParams, f_hz: float, kind: str, rate_hz: float = 100
     from ccf_ros.core.ccf import GRAVITY_M_S2
 
     amp = 0.05 if kind == 'acc' else 0.05 * 2 * math.pi * f_hz
-    settle = max(3.0 / f_hz, 6.0 * max(p.tau_bias_s, p.tau_acc_s + p.tau_acc_lp_s))
+    # The NCF's bias covariance reaches its steady state in ~10 tau_bias_s; the low-passes settle in ~6 delays.
+    settle = max(3.0 / f_hz, 10.0 * p.tau_bias_s, 6.0 * (p.tau_acc_s + p.tau_acc_lp_s + p.tau_ncf_s))
     fit = math.ceil(max(4.0 / f_hz, 10.0) * f_hz) / f_hz
     n = int(round((settle + fit) * rate_hz))
     t = np.arange(n) / rate_hz
@@ -216,24 +217,25 @@ def _cascade_response(p: CcfParams, f_hz: float, kind: str, rate_hz: float = 100
 @pytest.mark.parametrize('kind', ['acc', 'rate'])
 @pytest.mark.parametrize('f_hz', [0.005, 0.05, 0.3, 1.0])
 def test_cascade_matches_its_small_angle_transfer_function(kind, f_hz):
-    """The default is a genuine NCF -> LCF cascade: its measured response is the derived one (ccf.tilt_transfer),
-    which differs from a single PI stage, below fs/100 within 0.5 dB / 5 deg."""
+    """The default is a genuine NCF -> LCF cascade: its measured response is the derived one (ccf.tilt_transfer, the
+    NCF's Kalman gain at its steady state), which differs from a single PI stage, below fs/100 within 0.5 dB / 5 deg."""
     from ccf_ros.core.ccf import tilt_transfer
 
     p = CcfParams(use_mag=False, rest_bias=False, max_dt_s=1.0)
     h = _cascade_response(p, f_hz, kind)
     h_a, h_w = tilt_transfer(p, f_hz)
     ref = h_a if kind == 'acc' else h_w
-    # Measured: within 0.01 dB everywhere; phase within 0.07° except the rate path at 0.3 and 1 Hz (0.5°, 1.8°: the
-    # estimate is half a sample ahead for point samples, 360° f dt / 2).
-    assert 20 * math.log10(abs(h)) == pytest.approx(20 * math.log10(abs(ref)), abs=0.012)
-    assert np.degrees(np.angle(h / ref)) == pytest.approx(0.0, abs=2.2 if kind == 'rate' and f_hz > 0.1 else 0.1)
+    # Measured: within 0.019 dB everywhere (the discrete Kalman's steady state, updated every 20 ms); phase within
+    # 0.06° except the rate path at 0.3 and 1 Hz (0.5°, 1.8°: the estimate is half a sample ahead for point samples,
+    # 360° f dt / 2).
+    assert 20 * math.log10(abs(h)) == pytest.approx(20 * math.log10(abs(ref)), abs=0.023)
+    assert np.degrees(np.angle(h / ref)) == pytest.approx(0.0, abs=2.2 if kind == 'rate' and f_hz > 0.1 else 0.075)
     # A single PI stage (the NCF alone, eq 11, as the previous default was) lets far more acceleration through.
     if kind == 'acc' and f_hz == 0.3:
         s = 2j * math.pi * f_hz
-        kn, ki = 1 / p.tau_ncf_s, 1 / (p.tau_ncf_s * p.tau_bias_s)
+        kn, ki = 1 / p.tau_ncf_s, p.bias_gain_per_s / p.tau_ncf_s
         single = (kn * s + ki) / (s * s + kn * s + ki)
-        assert 20 * math.log10(abs(single)) - 20 * math.log10(abs(h)) > 10.0  # measured 12.2 dB
+        assert 20 * math.log10(abs(single)) - 20 * math.log10(abs(h)) > 10.5  # measured 12.6 dB
 
 
 def test_bias_is_learnt_while_moving_without_rest():
@@ -243,8 +245,11 @@ def test_bias_is_learnt_while_moving_without_rest():
     r = run_batch(make_filter({'rest_bias': False}), d.t_s, d.gyr + b_true, d.acc, d.mag)
     err = np.degrees(np.abs(r.bias - b_true)).max(axis=1)
     t = d.t_s - d.t_s[0]
-    assert err[t < 30].max() > 0.5  # it starts far off ...
-    assert err[t >= 150].max() < 0.1, err[t >= 150].max()  # ... and is within 0.1 deg/s after 150 s (measured 121 s)
+    assert err[t < 15].max() > 0.5  # it starts far off (nothing is learnt during the 15 s start-up) ...
+    # ... and is within 0.1 °/s from 60 s on, the figure the README states (measured: from 42 s; at most 0.039 °/s
+    # after 60 s, 0.0072 °/s at the end).
+    assert err[t >= 60].max() < 0.1, err[t >= 60].max()
+    assert err[-1] < 0.0087, err[-1]
 
 
 def test_bias_estimate_is_clamped_per_axis():
@@ -406,7 +411,7 @@ def test_sample_timing_constant_rotation_at_40_hz(averaged):
     err = np.degrees(np.angle(np.exp(1j * (est - (th1[-400:] + lead)))))
     assert np.abs(q[:, 2:]).max() < 1e-6
     assert np.abs(err).max() < 0.05, np.abs(err).max()  # measured 0.041 (first-order half-step rotation)
-    assert np.degrees(np.abs(filt.gyro_bias).max()) < 0.006  # °/s; measured 0.0045
+    assert np.degrees(np.abs(filt.gyro_bias).max()) < 0.0074  # °/s; measured 0.0061
 
 
 # Half-step angles 0.0044 (the series) and 0.014 (sin/cos).
@@ -526,8 +531,9 @@ def test_a_new_field_with_outliers_still_becomes_the_reference():
 
 def test_a_large_heading_error_is_not_learnt_as_gyro_bias():
     """6-D start, then a magnetometer whose north is 90° from the start's heading: the NCF takes the whole error
-    into its own heading and its bias integral none of what exceeds 5°, so the (zero) bias stays small while the
-    heading swings round. (Limiting the error for both: 1.8°/s of false bias.)"""
+    into its own heading, and its bias estimate none while the error, or the NCF's heading offset from the LCF's,
+    exceeds 5°, so the (zero) bias stays small while the heading swings round. (Without the offset rule the decay of
+    the NCF's error reads as 0.98°/s of bias; limiting only the error for both: 1.8°/s.)"""
     from ccf_ros.core.quaternion import quat_conj
     from ccf_ros.offline.simulate import MAG_WORLD
 
@@ -541,14 +547,17 @@ def test_a_large_heading_error_is_not_learnt_as_gyro_bias():
         f.update(float(d.t_s[k]), tuple(d.gyr[k]), tuple(d.acc[k]), tuple(mag[k]) if t[k] >= 10.0 else None)
         bias.append(f.gyro_bias)
     bias = np.degrees(np.abs(bias))
-    assert bias[t > 10.0].max() < 0.17  # °/s; measured 0.141
-    assert bias[-1].max() < 0.025  # measured 0.020
+    assert bias[t > 10.0].max() < 0.042  # °/s; measured 0.035
+    assert bias[-1].max() < 0.006  # measured 0.0048
 
 
-def test_bias_uncertainty_schedule_rest_makes_it_small_motion_lets_it_grow():
+@pytest.mark.parametrize('motion_bias', [False, True])
+def test_bias_uncertainty_schedule_rest_makes_it_small_motion_lets_it_grow(motion_bias):
+    """The NCF's covariance: bias_sigma_rest after a rest; while moving it grows with the bias random walk alone
+    without motion learning, and less with it, as the observations add what the walk takes away."""
     d = generate(65.0, 200.0, seed=7, rest_s=10.0, bias_walk_rad_s_sqrt_s=0.0)
     t = d.t_s - d.t_s[0]
-    p = CcfParams()
+    p = CcfParams(motion_bias=motion_bias)
     f = QuaternionCcf(p)
     assert f.gyro_bias_sigma_rad_s == p.bias_sigma_init_rad_s
     sigma = []
@@ -560,14 +569,19 @@ def test_bias_uncertainty_schedule_rest_makes_it_small_motion_lets_it_grow():
     sigma = np.degrees(sigma)
     end_rest = np.searchsorted(t, 10.0) - 1
     assert sigma[end_rest] < 0.024, sigma[end_rest]  # °/s: bias_sigma_rest_rad_s (0.02) reached (measured 0.0200)
-    # Moving: the variance grows by bias_walk² per second (random walk), never above the initial value.
     grow = np.degrees(p.bias_walk_rad_s_sqrt_s) ** 2 * (t[-1] - t[end_rest])
-    assert sigma[-1] ** 2 == pytest.approx(sigma[end_rest] ** 2 + grow, rel=0.05)
-    assert np.all(np.diff(sigma[end_rest + 200:]) >= 0.0)
-    # ... and the bias learnt at rest stays put while moving (the NCF's gain is scaled by the variance): it moves by
-    # a small fraction of its own error (the rest estimate's noise, 0.014 °/s here).
-    assert np.degrees(np.abs(np.subtract(f.gyro_bias, b_rest))).max() < 0.0004  # °/s, measured 0.0003
-    assert np.degrees(np.abs(f.gyro_bias - d.bias[-1])).max() < 0.017  # °/s, measured 0.014
+    err_rest = np.degrees(np.abs(np.subtract(b_rest, d.bias[-1]))).max()  # the rest estimate's noise, 0.014 °/s
+    err_end = np.degrees(np.abs(f.gyro_bias - d.bias[-1])).max()
+    if not motion_bias:
+        # The variance grows by bias_walk² per second (random walk), and the rest estimate stays as it was.
+        assert sigma[-1] ** 2 == pytest.approx(sigma[end_rest] ** 2 + grow, rel=0.05)
+        assert np.all(np.diff(sigma[end_rest + 200:]) >= 0.0)
+        assert err_end == err_rest
+    else:
+        # Learning while moving holds the uncertainty below the walk's (measured 0.045 against 0.077 °/s) and
+        # improves on the rest estimate (error measured 0.0057 against 0.0141 °/s).
+        assert sigma[end_rest:].max() ** 2 < 0.42 * (sigma[end_rest] ** 2 + grow)  # measured 0.35
+        assert err_end < 0.0069 and err_rest > 2 * err_end, (err_end, err_rest)
 
 
 def test_a_longer_rest_min_s_set_live_ends_the_rest_until_the_timer_reaches_it():

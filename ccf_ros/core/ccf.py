@@ -1,45 +1,53 @@
 """Cascaded complementary filter on unit quaternions (the ccf_ros default): an NCF stage feeding an LCF stage.
 
-The cascade of Narkhede et al. (Sensors 2021) — a PI stage (NCF) that estimates the gyroscope bias, followed by a
+The cascade of Narkhede et al. (Sensors 2021) — a PI stage (NCF) whose integral is the gyroscope bias, followed by a
 linear complementary stage (LCF) that integrates the bias-corrected rate and blends it with the
 accelerometer/magnetometer attitude — made to work in 3-D, at any sample rate, under linear acceleration:
 
-0. **Accelerometer low-pass in an almost-inertial frame** (linear-acceleration rejection). The specific force is
-   low-passed (time constant ``tau_acc_lp_s``) in the frame that the bias-corrected gyro carries along: the filter
-   state ``g_lp`` (m/s², body frame) is rotated with every gyro step before the new sample is blended in. Gravity
-   is constant in that frame, so it passes unattenuated and without lag, while linear accelerations — whose
-   integral is a bounded velocity change — average out. (The idea is VQF's, Laidig & Seel 2023; the code is ours.)
-   ``g_lp`` is "the accelerometer attitude" both stages see.
+0. **Gravity low-pass in an almost-inertial frame** (linear-acceleration rejection). The specific force is low-passed
+   by a second-order Butterworth filter (group delay ``tau_acc_lp_s``) in the frame that the bias-corrected gyro
+   carries along: its two states ``g_lp`` (m/s², body) and ``g_lp'`` (m/s³, body) are rotated with every gyro step
+   before the new sample is filtered in. Gravity is constant in that frame, so it passes without attenuation, while
+   linear accelerations — whose integral is a bounded velocity change — average out at 12 dB/octave. (The idea is
+   VQF's, Laidig & Seel 2023; the code is ours.) ``g_lp`` is "the accelerometer attitude" both stages see.
 1. **NCF (bias stage).** Its own attitude ``exp(dn) ⊗ q`` (``dn``: a small world-frame rotation from the LCF
    attitude, tilt and heading) is integrated from the same bias-corrected gyro and corrected towards ``g_lp`` and the
-   magnetometer heading with a proportional gain ``1/tau_ncf_s``; the integral of its error, gain
-   ``u/(tau_ncf_s * tau_bias_s)``, is the gyro-bias estimate. ``u`` is the bias variance relative to
-   ``bias_sigma_init_rad_s²`` (Kalman-like: 1 while nothing is known, small after a rest, growing back with
-   ``bias_walk_rad_s_sqrt_s``). With ``tau_bias_s >= 4 tau_ncf_s`` the bias loop is (over)damped and, at ``u = 1``, a
-   bias converges with a time constant of about ``tau_bias_s`` while moving. ``tau_ncf_s`` must be shorter than the
-   time the body takes to turn, or the integral sees an error that the rotation has turned away. At rest the bias is
-   instead pulled to the low-passed gyro (much more informative).
+   magnetometer heading with a proportional gain ``K_n = 1/tau_ncf_s``. Its error, times ``K_n``, is the rate at
+   which the gyro's attitude drifts away from gravity and north: an observation of the bias error, seen through the
+   two low-passes it passed (Butterworth and NCF, tilt) or the NCF's alone (heading). The integral is a Kalman
+   filter on that observation (state: the bias, rad/s, body; covariance ``P``, 3x3): its measurement model passes the
+   body->world rotation through the same low-passes, so a body that turns while the error builds up is modelled,
+   not mistaken for bias. The tilt observations' noise density is ``(bias_walk_rad_s_sqrt_s tau_bias_s)²``, so in
+   steady motion the bias follows with time constant ``tau_bias_s``; the heading's is that over cos²(dip) (a
+   magnetometer's heading carries the tilt error times tan(dip)); both grow with the rotation rate
+   (``bias_rotation_rad_s``: scale-factor and misalignment errors make a rotation look like bias). ``P`` starts at
+   ``bias_sigma_init_rad_s²``, relaxes to ``bias_sigma_rest_rad_s²`` at rest (where the bias is pulled to the
+   low-passed gyro, which is far more informative) and grows with ``bias_walk_rad_s_sqrt_s``, so a bias learnt at
+   rest is refined slowly at first and more readily as it ages. The bias update runs every ~20 ms of samples.
 2. **LCF (output stage).** The published attitude ``q`` integrates the bias-corrected rate and is blended towards
    ``g_lp`` (inclination, time constant ``tau_acc_s``) and towards the magnetometer heading (rotation about world
    up only, ``tau_mag_s``), so a magnetic disturbance never tilts the estimate. A field whose norm or dip departs from
    the reference is ignored for heading until it agrees again (or stays steady for ``mag_reaccept_s``: a new
    normal). The reference is the mean field of the first ``mag_ref_learn_s`` after a (re)initialisation.
 
-Small-angle transfer functions (one tilt axis; ``k_f = 1/tau_acc_lp_s``, ``K_n = 1/tau_ncf_s``,
-``K_i = 1/(tau_ncf_s tau_bias_s)``, ``K_a = 1/tau_acc_s``, ``P = (s + k_f)(s + K_n)``, ``Q = s P + K_i k_f``), from the
-accelerometer angle ``x_a`` and from the measured rate ``w`` to the output ``x`` (see :func:`tilt_transfer`)::
+Small-angle transfer functions (one tilt axis, see :func:`tilt_transfer`): with the Butterworth low-pass
+``B(s) = w_n² / (s² + √2 w_n s + w_n²)``, ``w_n = √2 / tau_acc_lp_s``, the observation filter ``M = B K_n / (s + K_n)``,
+``K_a = 1/tau_acc_s`` and the bias gain ``G`` (the Kalman steady state ``bias_walk / sqrt(W) = 1/tau_bias_s`` in
+continuous motion), the bias estimate is ``b = G M / (s + G) (w - s x_a)`` and, from the accelerometer angle ``x_a``
+and from the measured rate ``w`` to the output ``x``::
 
-    H_a(s) = (K_a k_f Q + K_i k_f s (s + k_f + K_a)) / ((s + k_f)(s + K_a) Q)
-    H_w(s) = s (s + k_f + K_a) P / ((s + k_f)(s + K_a) Q)        with s H_w + H_a = 1 (complementary)
+    H_a(s) = (F (s + K_a (1 - B)) + K_a B) / (s + K_a)            F = G M / (s + G)
+    H_w(s) = (1 - F) (s + K_a (1 - B)) / (s (s + K_a))           with s H_w + H_a = 1 (complementary)
 
-Without the NCF (``K_i = 0``) ``H_a = k_f K_a / ((s + k_f)(s + K_a))``: linear accelerations are attenuated at
-12 dB/octave, twice the rate of a single blend. The per-sample gains ``1 - exp(-dt/tau)`` make the defaults behave
-the same at 40 Hz and at 1 kHz.
+Without the NCF (``G = 0``) ``H_a = K_a B / (s + K_a)``: linear accelerations are attenuated at 18 dB/octave. The
+bias path is an open-loop filter of the rate the accelerometer does not confirm (``w - s x_a``): it cannot
+oscillate, whatever its gain. The per-sample gains ``1 - exp(-dt/tau)`` and the exactly discretised low-pass make the
+defaults behave the same at 40 Hz and at 1 kHz.
 
 Sample timing. The gyro step uses the rectangle rule: a sample's rate is taken as the mean over the interval before
 it (what a MEMS gyro's decimation filter outputs), which carries the frame exactly to the step's end. The
 accelerometer sample is the same kind of mean, so it describes gravity in the frame of mid-interval: it is rotated
-forward by half the gyro step before it is blended (first order; it matters at low rates and fast rotation). With
+forward by half the gyro step before it is filtered in (first order; it matters at low rates and fast rotation). With
 instantaneous (point) samples the estimate is therefore the frame half a step after the stamp.
 
 Reported covariance: continuous-time, so it does not depend on the sample rate. Inclination and heading variances
@@ -65,11 +73,17 @@ _TWO_PI = 2.0 * math.pi
 #: Standard gravity, m/s² (REP-145 accelerometers read +g up at rest).
 GRAVITY_M_S2 = 9.80665
 _INV_G = 1.0 / GRAVITY_M_S2
-#: Largest NCF heading error the bias integral uses, rad (see _step).
+#: Largest NCF heading error the bias estimate uses, rad (see _step).
 _HEAD_ERR_MAX = 5.0 * _DEG
 _HEAD_ERR_MAX2 = _HEAD_ERR_MAX * _HEAD_ERR_MAX
 #: The new-field timer loses this many seconds per second of samples that disagree with the candidate.
 _LEAK = 3.0
+#: The NCF's bias update runs once per this many seconds of samples (every sample below 50 Hz): the observations
+#: are low-passed over seconds, so sampling them at 50 Hz loses nothing and saves most of the matrix arithmetic.
+BIAS_UPDATE_PERIOD_S = 0.02
+#: cos²(dip) is floored at this when the heading observations' noise is scaled by 1/cos²(dip) (near a magnetic pole
+#: the horizontal field, and so heading, is lost in the tilt error).
+_COS2_DIP_MIN = 0.05
 
 
 @dataclass(frozen=True)
@@ -77,14 +91,21 @@ class CcfParams(CommonParams):
     """Parameters of :class:`QuaternionCcf`. Defaults are chosen from plateaus and physics, meant to need no tuning.
 
     Attributes:
-        tau_acc_s: LCF: time constant of the inclination blend towards the filtered gravity, s. Default 2.5.
-        tau_mag_s: LCF: time constant of the heading blend towards the magnetometer, s. Default 9.0.
-        tau_acc_lp_s: time constant of the accelerometer low-pass in the gyro-carried (almost inertial) frame, s.
-            Together with ``tau_acc_s`` it attenuates linear accelerations at 12 dB/octave. Default 2.5.
-        tau_ncf_s: NCF: time constant of its proportional correction, s; shorter than the body takes to turn.
-            Default 3.
-        tau_bias_s: NCF: integral time constant, s (gain ``u/(tau_ncf_s tau_bias_s)``); a constant bias is learnt
-            while moving with a time constant of about this (critically damped at ``4 tau_ncf_s``). Default 30.
+        tau_acc_s: LCF: time constant of the inclination blend towards the filtered gravity, s. Default 1.0.
+        tau_mag_s: LCF: time constant of the heading blend towards the magnetometer, s. Default 15 (the bias is
+            learnt from the heading too, so the blend only has to outlast the magnetometer's errors, not the
+            gyro's bias).
+        tau_acc_lp_s: group delay of the second-order (Butterworth) gravity low-pass in the gyro-carried (almost
+            inertial) frame, s; cut-off frequency ``sqrt(2) / (2 pi tau_acc_lp_s)``. Together with ``tau_acc_s`` it
+            attenuates linear accelerations at 18 dB/octave; a gyro bias ``b`` leaves a tilt lag of about
+            ``b (tau_acc_lp_s + tau_acc_s)`` until it is learnt. Default 2.5.
+        tau_ncf_s: NCF: time constant of its proportional correction, s. Default 3.
+        tau_bias_s: NCF: time constant with which the bias estimate follows the observed drift in continuous
+            motion (the Kalman steady state), s: it sets the tilt observations' noise density to
+            ``(bias_walk_rad_s_sqrt_s tau_bias_s)²``. Default 5.
+        bias_rotation_rad_s: rotation rate at which the NCF's bias observations count half, rad/s (their noise
+            grows as ``1 + (|w| / this)²``): a gyro's scale-factor and misalignment errors, ~0.3 %, make a fast
+            rotation look like bias. Default 12°/s.
         motion_bias: learn the bias while moving (the NCF integral). Default True.
         rest_bias: learn the bias from the gyro directly while the IMU rests. Default True.
         rest_gyro_rad_s: rest when the gyro stays within this of its low-passed value, rad/s. Default 2°/s.
@@ -103,27 +124,27 @@ class CcfParams(CommonParams):
             first set (after a (re)initialisation or a new field), s, all of them used for heading meanwhile; 0: the
             first sample alone. One sample is a lottery: a MEMS magnetometer's norm scatters by ~1.5 % per sample,
             a third of the 5 % tolerance. The mean weights the samples linearly in time, because after an
-            initialisation while moving the tilt, and so the dip, converges like 1/t. Default 5 (twice tau_acc_s).
+            initialisation while moving the tilt, and so the dip, converges like 1/t. Default 5.
         incl_sigma_rad: reported standard deviation of roll and of pitch while the accelerometer corrects them, rad
             (typical MEMS calibration/alignment error plus residual linear acceleration). Default 0.5°.
         heading_sigma_rad: reported heading standard deviation while the magnetometer corrects it, rad (residual
             hard/soft-iron and local-field errors; the geometric middle of 0.5-6.6° measured on BROAD). Default 1.7°.
         gyro_arw_rad_sqrt_s: gyro angle random walk (noise density), rad/√s; grows the reported variance while a
             correction is missing. Default 3e-4 (0.017 °/s/√Hz, a typical MEMS gyro).
-        bias_sigma_init_rad_s: bias uncertainty before anything is learnt, rad/s. The NCF integral gain is scaled
-            by the bias variance relative to this (a Kalman-like schedule): fast learning while the bias is unknown,
-            slow refinement once it is. Default 0.5°/s.
+        bias_sigma_init_rad_s: bias uncertainty before anything is learnt, rad/s (the NCF Kalman filter's initial
+            ``P``). Default 0.5°/s.
         bias_sigma_rest_rad_s: bias uncertainty after a rest, rad/s: a MEMS gyro's noise (~0.3°/s per sample at
             300 Hz) averaged over the rest low-pass. Default 0.02°/s.
-        bias_walk_rad_s_sqrt_s: random walk of the bias, (rad/s)/√s: how fast knowledge of the bias ages, which keeps
-            the NCF learning while moving for ever. Default 0.01 (°/s)/√s (0.1°/s after 100 s).
+        bias_walk_rad_s_sqrt_s: random walk of the bias, (rad/s)/√s: how fast knowledge of the bias ages (thermal
+            drift), which keeps the NCF learning while moving for ever. Default 0.01 (°/s)/√s (0.1°/s after 100 s).
     """
 
-    tau_acc_s: float = 2.5
-    tau_mag_s: float = 9.0
+    tau_acc_s: float = 1.0
+    tau_mag_s: float = 15.0
     tau_acc_lp_s: float = 2.5
     tau_ncf_s: float = 3.0
-    tau_bias_s: float = 30.0
+    tau_bias_s: float = 5.0
+    bias_rotation_rad_s: float = 12.0 * _DEG
     motion_bias: bool = True
     rest_bias: bool = True
     rest_gyro_rad_s: float = 2.0 * _DEG
@@ -145,10 +166,10 @@ class CcfParams(CommonParams):
     def __post_init__(self) -> None:
         super().__post_init__()
         for name in (
-            'tau_acc_s', 'tau_mag_s', 'tau_acc_lp_s', 'tau_ncf_s', 'tau_bias_s', 'rest_gyro_rad_s', 'rest_acc_m_s2',
-            'rest_min_s', 'rest_tau_s', 'bias_max_rad_s', 'mag_norm_tol', 'mag_dip_tol_rad', 'mag_reaccept_s',
-            'incl_sigma_rad', 'heading_sigma_rad', 'gyro_arw_rad_sqrt_s', 'bias_sigma_init_rad_s', 'bias_sigma_rest_rad_s',
-            'bias_walk_rad_s_sqrt_s',
+            'tau_acc_s', 'tau_mag_s', 'tau_acc_lp_s', 'tau_ncf_s', 'tau_bias_s', 'bias_rotation_rad_s',
+            'rest_gyro_rad_s', 'rest_acc_m_s2', 'rest_min_s', 'rest_tau_s', 'bias_max_rad_s', 'mag_norm_tol',
+            'mag_dip_tol_rad', 'mag_reaccept_s', 'incl_sigma_rad', 'heading_sigma_rad', 'gyro_arw_rad_sqrt_s',
+            'bias_sigma_init_rad_s', 'bias_sigma_rest_rad_s', 'bias_walk_rad_s_sqrt_s',
         ):
             check_positive(name, getattr(self, name))
         check_range('mag_ref_learn_s', self.mag_ref_learn_s, 0.0, 3600.0)
@@ -156,6 +177,25 @@ class CcfParams(CommonParams):
         for name in ('motion_bias', 'rest_bias'):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f'{name} must be a bool, got {getattr(self, name)!r}')
+
+    @property
+    def bias_gain_per_s(self) -> float:
+        """Steady-state gain of the NCF's bias estimate in continuous motion, 1/s (``1/tau_bias_s``; 0 without
+        ``motion_bias``): the ``G`` of :func:`tilt_transfer`."""
+        return 1.0 / self.tau_bias_s if self.motion_bias else 0.0
+
+
+def butterworth_step(tau_s: float, dt: float) -> tuple[float, float, float, float]:
+    """Exact one-step transition ``(p11, p12, p21, p22)`` of the second-order Butterworth low-pass of group delay
+    ``tau_s`` (s) over ``dt`` (s), for the state (value, rate) with the input held over the step::
+
+        value' = p11 value + p12 rate + (1 - p11) input,   rate' = p21 (value - input) + p22 rate
+    """
+    wn = math.sqrt(2.0) / tau_s  # group delay at DC 2 zeta / wn with zeta = 1/sqrt(2)
+    sg = wn / math.sqrt(2.0)  # zeta wn; the damped frequency equals it for zeta = 1/sqrt(2)
+    e = math.exp(-sg * dt)
+    c, s = math.cos(sg * dt), math.sin(sg * dt)
+    return e * (c + s), e * s / sg, -e * wn * wn * s / sg, e * (c - s)
 
 
 @dataclass(frozen=True, slots=True)
@@ -170,7 +210,10 @@ class _Coefficients:
     k_lp: float
     k_min: float
     k_ncf: float
-    k_int: float
+    lp_a: float
+    lp12: float
+    lp21: float
+    lp22: float
     k_rest: float
     rest_gyro2: float
     rest_acc2: float
@@ -180,17 +223,37 @@ class _Coefficients:
     rest_bias: bool
     keep_incl: float
     keep_head: float
-    keep_bias_rest: float
-    u_rest_gain: float
-    u_walk: float
     sigma_init: float
     var_arw: float
+    # The NCF's bias update, once every blk_n samples (blk_dt s).
+    blk_n: int
+    blk_dt: float
+    learn: bool
+    m_a: float
+    m12: float
+    m21: float
+    m22: float
+    k_ncf_blk: float
+    inv_tau_ncf: float
+    r_tilt: float
+    inv_rot2: float
+    walk_blk: float
+    p_init: float
+    p_rest: float
+    keep_rest_blk: float
 
     @classmethod
     def of(cls, p: CcfParams, dt: float) -> _Coefficients:
         k_rest = -math.expm1(-dt / p.rest_tau_s)
         # Rest thresholds apply to (sample - new low-pass) = (1 - k_rest) * (sample - old low-pass).
         rest_keep2 = (1.0 - k_rest) ** 2 if k_rest < 1.0 else 1e-300
+        lp = butterworth_step(p.tau_acc_lp_s, dt)
+        n = max(1, int(BIAS_UPDATE_PERIOD_S / dt)) if dt > 0.0 else 1
+        blk_dt = n * dt
+        m = butterworth_step(p.tau_acc_lp_s, blk_dt)
+        # The start-up hands the blends over to their time constants; without a magnetometer heading has none.
+        taus = (p.tau_acc_s, p.tau_acc_lp_s, p.tau_mag_s) if p.use_mag else (p.tau_acc_s, p.tau_acc_lp_s)
+        walk = p.bias_walk_rad_s_sqrt_s
         return cls(
             dt=dt,
             # Float stamps near 1.7e9 s resolve 0.24 µs, so dt wobbles by ~1e-4 relative: gains are reused while dt
@@ -199,10 +262,14 @@ class _Coefficients:
             dt_hi=dt * (1.0 + 1e-3),
             k_acc=-math.expm1(-dt / p.tau_acc_s),
             k_mag=-math.expm1(-dt / p.tau_mag_s),
+            # The low-pass's start-up running mean hands over at the rate of a first-order filter of its delay.
             k_lp=-math.expm1(-dt / p.tau_acc_lp_s),
-            k_min=-math.expm1(-dt / max(p.tau_acc_s, p.tau_mag_s, p.tau_acc_lp_s)),
+            k_min=-math.expm1(-dt / max(taus)),
             k_ncf=-math.expm1(-dt / p.tau_ncf_s),
-            k_int=dt / (p.tau_ncf_s * p.tau_bias_s) if p.motion_bias else 0.0,
+            lp_a=1.0 - lp[0],
+            lp12=lp[1],
+            lp21=lp[2],
+            lp22=lp[3],
             k_rest=k_rest,
             rest_gyro2=p.rest_gyro_rad_s**2 / rest_keep2,
             rest_acc2=p.rest_acc_m_s2**2,
@@ -213,11 +280,24 @@ class _Coefficients:
             # Drift variances decay with the blends' (combined) time constants once corrected again.
             keep_incl=math.exp(-2.0 * dt / (p.tau_acc_s + p.tau_acc_lp_s)),
             keep_head=math.exp(-2.0 * dt / p.tau_mag_s),
-            keep_bias_rest=math.exp(-dt / p.rest_tau_s),
-            u_rest_gain=(p.bias_sigma_rest_rad_s / p.bias_sigma_init_rad_s) ** 2 * -math.expm1(-dt / p.rest_tau_s),
-            u_walk=(p.bias_walk_rad_s_sqrt_s / p.bias_sigma_init_rad_s) ** 2 * dt,
             sigma_init=p.bias_sigma_init_rad_s,
             var_arw=p.gyro_arw_rad_sqrt_s**2 * dt,
+            blk_n=n,
+            blk_dt=blk_dt,
+            learn=p.motion_bias,
+            m_a=1.0 - m[0],
+            m12=m[1],
+            m21=m[2],
+            m22=m[3],
+            k_ncf_blk=-math.expm1(-blk_dt / p.tau_ncf_s),
+            inv_tau_ncf=1.0 / p.tau_ncf_s,
+            # Variance of one block's tilt observation: the noise density (walk x tau_bias)² over the block.
+            r_tilt=(walk * p.tau_bias_s) ** 2 / blk_dt if blk_dt > 0.0 else math.inf,
+            inv_rot2=1.0 / p.bias_rotation_rad_s**2,
+            walk_blk=walk * walk * blk_dt,
+            p_init=p.bias_sigma_init_rad_s**2,
+            p_rest=p.bias_sigma_rest_rad_s**2,
+            keep_rest_blk=math.exp(-blk_dt / p.rest_tau_s),
         )
 
 
@@ -229,29 +309,31 @@ def _drift(var: float, bias_step: float, var_arw: float) -> float:
 
 def tilt_transfer(p: CcfParams, f_hz: complex | float) -> tuple[complex, complex]:
     """Small-angle transfer functions of one tilt axis at ``f_hz``: ``(H_a, H_w)`` from the accelerometer angle
-    (rad/rad) and from the measured rate (rad per rad/s) to the output; see the module docstring."""
+    (rad/rad) and from the measured rate (rad per rad/s) to the output, with the NCF's bias gain at its steady state
+    in continuous motion (:attr:`CcfParams.bias_gain_per_s`); see the module docstring."""
     s = 2j * cmath.pi * f_hz
-    kf, kn, ka = 1.0 / p.tau_acc_lp_s, 1.0 / p.tau_ncf_s, 1.0 / p.tau_acc_s
-    ki = 1.0 / (p.tau_ncf_s * p.tau_bias_s) if p.motion_bias else 0.0
-    pp = (s + kf) * (s + kn)
-    qq = s * pp + ki * kf
-    den = (s + kf) * (s + ka) * qq
-    return (ka * kf * qq + ki * kf * s * (s + kf + ka)) / den, s * (s + kf + ka) * pp / den
+    wn = math.sqrt(2.0) / p.tau_acc_lp_s
+    b = wn * wn / (s * s + math.sqrt(2.0) * wn * s + wn * wn)
+    kn, ka, g = 1.0 / p.tau_ncf_s, 1.0 / p.tau_acc_s, p.bias_gain_per_s
+    f = g * b * kn / ((s + kn) * (s + g))
+    lcf = s + ka * (1.0 - b)
+    return (f * lcf + ka * b) / (s + ka), (1.0 - f) * lcf / (s * (s + ka))
 
 
 class QuaternionCcf(OrientationFilter):
     """NCF -> LCF cascade on unit quaternions; see the module docstring.
 
-    State (all reset by :meth:`reset`): LCF orientation ``q``, gyro bias (rad/s, body), filtered gravity ``g_lp``
-    (m/s², body), NCF attitude offset ``dn`` (rad, world frame), rest-detector low-pass and timer, magnetometer reference
-    (with its learning window) and new-field candidate, drift variances (rad²) and bias uncertainty (rad/s).
+    State (all reset by :meth:`reset`): LCF orientation ``q``, gyro bias (rad/s, body) and its covariance ``P``
+    (rad²/s², 3x3), filtered gravity ``g_lp`` (m/s², body) and its rate, NCF attitude offset ``dn`` (rad, world
+    frame), the NCF observation model's low-pass states, rest-detector low-pass and timer, magnetometer reference
+    (with its learning window) and new-field candidate, drift variances (rad²).
     """
 
     name = 'ccf'
     __slots__ = (
-        '_coef', '_gyro_lp', '_heading_known', '_mag_bounds', '_mag_candidate', '_mag_have_ref', '_mag_learn_n',
-        '_mag_learn_s', '_mag_new_s', '_mag_ref', '_mag_rejected_t', '_n_init', '_rest_s', '_u_bias', '_var_head',
-        '_var_incl', '_x',
+        '_blk', '_coef', '_gyro_lp', '_heading_known', '_mag_bounds', '_mag_candidate', '_mag_have_ref',
+        '_mag_learn_n', '_mag_learn_s', '_mag_new_s', '_mag_ref', '_mag_rejected_t', '_model', '_n_init', '_p_bias',
+        '_rest_s', '_u_bias', '_var_head', '_var_incl', '_x',
     )
     params: CcfParams
 
@@ -260,8 +342,9 @@ class QuaternionCcf(OrientationFilter):
 
     def _reset_state(self) -> None:
         # The per-sample state in one tuple (one load and one store per sample): the gyro bias b (rad/s, body), the
-        # filtered gravity g_lp (m/s², body) and the NCF's offset dn (rad, world), 3 values each.
-        self._x = (0.0, 0.0, 0.0, 0.0, 0.0, GRAVITY_M_S2, 0.0, 0.0, 0.0)
+        # filtered gravity g_lp (m/s², body), the NCF's offset dn (rad, world) and g_lp's rate (m/s³, body), 3
+        # values each.
+        self._x = (0.0, 0.0, 0.0, 0.0, 0.0, GRAVITY_M_S2, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         self._coef = _Coefficients.of(self.params, 0.0)
         self._gyro_lp = (0.0, 0.0, 0.0)
         self._rest_s = 0.0
@@ -270,8 +353,14 @@ class QuaternionCcf(OrientationFilter):
         self._var_incl = 0.0
         self._var_head = 0.0
         self._heading_known = False
-        # Bias variance relative to bias_sigma_init_rad_s²: 1 = nothing learnt yet.
+        # Bias covariance (p00, p01, p02, p11, p12, p22), rad²/s²: nothing learnt yet.
+        p0 = self.params.bias_sigma_init_rad_s**2
+        self._p_bias = (p0, 0.0, 0.0, p0, 0.0, p0)
+        # Mean bias variance relative to bias_sigma_init² (for the drift variances): 1 = nothing learnt yet.
         self._u_bias = 1.0
+        # Samples until the next NCF bias update; its observation model's low-pass states (None: seed at the next).
+        self._blk = 0
+        self._model: tuple[tuple[float, ...], ...] | None = None
 
     def _forget_mag_reference(self) -> None:
         """No reference field: the next usable magnetometer sample becomes it (see :meth:`_mag_rejected`)."""
@@ -329,6 +418,8 @@ class QuaternionCcf(OrientationFilter):
             self.at_rest = False
         if self._mag_have_ref and self._mag_learn_s <= 0.0:
             self._mag_bounds = self._bounds(*self._mag_ref)
+        # A new low-pass delay changes the observation model: seed it afresh.
+        self._model = None
 
     def _init(self, ax: float, ay: float, az: float, mx: float, my: float, mz: float, mag_ok: bool) -> None:
         q: Quat | None = quat_from_acc_mag_scalar(ax, ay, az, mx, my, mz, mag_ok)
@@ -351,11 +442,13 @@ class QuaternionCcf(OrientationFilter):
                 self._heading_known = False
         self._q = q
         bias = self._x[:3]
-        self._x = (*bias, ax, ay, az, 0.0, 0.0, 0.0)
+        self._x = (*bias, ax, ay, az, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         self._gyro_lp = bias
         self._rest_s = 0.0
         self.at_rest = False
         self._var_incl = 0.0
+        # The bias and its covariance are kept; the observation model starts from the new attitude.
+        self._model = None
         # Start-up: the blends begin as running means (gain 1/n) and hand over to their time constants once 1/n
         # falls below them, so the first seconds average the samples instead of trusting the first one.
         self._n_init = 1
@@ -382,7 +475,7 @@ class QuaternionCcf(OrientationFilter):
         if not c.dt_lo <= dt <= c.dt_hi:
             c = self._coef = _Coefficients.of(self.params, dt)
         qw, qx, qy, qz = self._q
-        bx, by, bz, fx, fy, fz, dnx, dny, dnz = self._x
+        bx, by, bz, fx, fy, fz, dnx, dny, dnz, fdx, fdy, fdz = self._x
         # Rows of the body->world rotation matrix: world east (r0), north (r1) and up (v) in body coordinates.
         # (Twice the products: x2 = 2 qx etc. saves the factor 2 of every matrix element.)
         x2, y2, z2 = qx + qx, qy + qy, qz + qz
@@ -404,12 +497,13 @@ class QuaternionCcf(OrientationFilter):
             kn = 1.0 / ni
             k_acc = kn if kn > c.k_acc else c.k_acc
             k_mag = kn if kn > c.k_mag else c.k_mag
-            k_lp = kn if kn > c.k_lp else c.k_lp
+            # The low-pass starts as a running mean too (0.0: the Butterworth filter has taken over).
+            k_lp = kn if kn > c.k_lp else 0.0
             self._n_init = ni if kn > c.k_min else 0
         else:
             k_acc = c.k_acc
             k_mag = c.k_mag
-            k_lp = c.k_lp
+            k_lp = 0.0
         cx = k_acc * ex
         cy = k_acc * ey
         cz = k_acc * ez
@@ -418,7 +512,8 @@ class QuaternionCcf(OrientationFilter):
         nx = ex - dnx * r0x - dny * r1x
         ny = ey - dnx * r0y - dny * r1y
         nz = ez - dnx * r0z - dny * r1z
-        hn = kd = 0.0
+        hn = kd = hi = 0.0
+        mag_used = False
         if mag_n2:
             norm = sqrt(mag_n2)
             sin_dip = (vx * mx + vy * my + vz * mz) / norm
@@ -433,17 +528,17 @@ class QuaternionCcf(OrientationFilter):
                 d = atan2(r0x * mx + r0y * my + r0z * mz, r1x * mx + r1y * my + r1z * mz)
                 kd = k_mag * d
                 # NCF heading error (its heading is the LCF's turned by dnz about world up). Its own heading takes
-                # all of it; the bias integral only what is within ±_HEAD_ERR_MAX: a larger one means the heading
-                # has not converged yet (a start, a new field), which is no information about the bias.
+                # all of it; the bias estimate only what is within ±_HEAD_ERR_MAX while the two stages' headings
+                # agree within it too. A larger error, or a larger dnz, means the heading has not converged yet (a
+                # start, a new field: the NCF turns faster than the LCF), and the decay would look like bias.
                 hn = d - dnz
                 if hn > _PI:  # the NCF's heading takes all of it: the short way round
                     hn -= _TWO_PI
                 elif hn < -_PI:
                     hn += _TWO_PI
-                hi = hn if hn * hn < _HEAD_ERR_MAX2 else 0.0
-                nx += hi * vx
-                ny += hi * vy
-                nz += hi * vz
+                if hn * hn < _HEAD_ERR_MAX2 and dnz * dnz < _HEAD_ERR_MAX2:
+                    hi = hn
+                    mag_used = True
                 cx += kd * vx
                 cy += kd * vy
                 cz += kd * vz
@@ -462,17 +557,18 @@ class QuaternionCcf(OrientationFilter):
                 self._var_incl = vi * c.keep_incl if vi > 1e-14 else 0.0
         else:
             self._var_incl = _drift(self._var_incl, c.sigma_init * sqrt(self._u_bias) * dt, c.var_arw)
-        # NCF integral: the bias estimate (tilt and, with a usable magnetometer, heading). Its gain is scaled by the
-        # bias variance u relative to bias_sigma_init² (Kalman-like): a rest makes u small, so a precise rest estimate
-        # is refined only slowly while moving; u grows back as that knowledge ages (bias random walk).
-        u = self._u_bias
-        # Not during the start-up (ni): the errors then are the initial attitude's, not the bias's; not at rest,
-        # where the low-passed gyro below is far more informative.
-        if not (ni or self.at_rest):
-            k = c.k_int * u
-            bx -= k * nx
-            by -= k * ny
-            bz -= k * nz
+        # NCF integral: a Kalman update of the bias once per block of samples (see _ncf_update).
+        blk = self._blk - 1
+        if blk <= 0:
+            blk = c.blk_n
+            bx, by, bz = self._ncf_update(
+                c, bx, by, bz, r0x, r0y, r0z, r1x, r1y, r1z, vx, vy, vz, nx, ny, nz, hi, mag_used,
+                gx * gx + gy * gy + gz * gz,
+                # Not during the start-up (ni): the errors then are the initial attitude's, not the bias's; not at
+                # rest, where the low-passed gyro below is far more informative; not without an accelerometer.
+                c.learn and not (ni or self.at_rest) and acc_n2 != 0.0,
+            )
+        self._blk = blk
         if c.rest_bias:
             # Rest: the accelerometer within rest_acc_m_s2 of the filtered gravity (tested first: it fails first
             # while moving, and then nothing else is needed), and the gyro within rest_gyro_rad_s of its low-pass.
@@ -506,22 +602,18 @@ class QuaternionCcf(OrientationFilter):
                     # 1e-12 s keeps the timer non-zero (the low-pass continues) from the first sample on.
                     rest_s = self._rest_s = self._rest_s + dt + 1e-12
                     if rest_s >= c.rest_min_s:
-                        # At rest the low-passed gyro *is* the bias: pull the estimate there.
+                        # At rest the low-passed gyro *is* the bias: pull the estimate there (its covariance relaxes
+                        # to bias_sigma_rest² in _ncf_update).
                         self.at_rest = True
                         bx += k * (glx - bx)
                         by += k * (gly - by)
                         bz += k * (glz - bz)
-                        # u relaxes to u_rest: u_rest + (u - u_rest) keep.
-                        self._u_bias = u = u * c.keep_bias_rest + c.u_rest_gain
                 elif self._rest_s:
                     self._rest_s = 0.0
                     self.at_rest = False
             elif self._rest_s:
                 self._rest_s = 0.0
                 self.at_rest = False
-        if u < 1.0 and not self.at_rest:
-            u += c.u_walk
-            self._u_bias = u if u < 1.0 else 1.0
         # Anti-windup: the estimate never leaves ±bias_max per axis (tested per axis only when the norm says it may).
         if bx * bx + by * by + bz * bz > c.bias_max2:
             m = c.bias_max
@@ -567,19 +659,41 @@ class QuaternionCcf(OrientationFilter):
             qw * hy - qx * hz + qy * hw + qz * hx,
             qw * hz + qx * hy - qy * hx + qz * hw,
         )
-        # g_lp into the new body frame, v' = R(p)^T v = v - 2 cw (p x v) + 2 p x (p x v).
+        # g_lp and its rate into the new body frame, v' = R(p)^T v = v - 2 cw (p x v) + 2 p x (p x v).
         tx = 2.0 * (fy * pz - fz * py)
         ty = 2.0 * (fz * px - fx * pz)
         tz = 2.0 * (fx * py - fy * px)
         fx += cw * tx + (ty * pz - tz * py)
         fy += cw * ty + (tz * px - tx * pz)
         fz += cw * tz + (tx * py - ty * px)
+        tx = 2.0 * (fdy * pz - fdz * py)
+        ty = 2.0 * (fdz * px - fdx * pz)
+        tz = 2.0 * (fdx * py - fdy * px)
+        fdx += cw * tx + (ty * pz - tz * py)
+        fdy += cw * ty + (tz * px - tx * pz)
+        fdz += cw * tz + (tx * py - ty * px)
         if acc_n2:
             # The sample is a mean over the step (gravity in the frame of mid-interval): carry it the half step to
-            # the step's end, v' = v - p x v (p = r/2 to ~1e-5), then blend.
-            fx += k_lp * (ax - (py * az - pz * ay) - fx)
-            fy += k_lp * (ay - (pz * ax - px * az) - fy)
-            fz += k_lp * (az - (px * ay - py * ax) - fz)
+            # the step's end, v' = v - p x v (p = r/2 to ~1e-5), then filter it in.
+            ax, ay, az = ax - (py * az - pz * ay), ay - (pz * ax - px * az), az - (px * ay - py * ax)
+            if k_lp:
+                # Start-up: a running mean, no rate yet.
+                fx += k_lp * (ax - fx)
+                fy += k_lp * (ay - fy)
+                fz += k_lp * (az - fz)
+                fdx = fdy = fdz = 0.0
+            else:
+                # Butterworth low-pass, exact for a sample held over the step.
+                a, p12, p21, p22 = c.lp_a, c.lp12, c.lp21, c.lp22
+                ax = fx - ax
+                ay = fy - ay
+                az = fz - az
+                fx += p12 * fdx - a * ax
+                fy += p12 * fdy - a * ay
+                fz += p12 * fdz - a * az
+                fdx = p21 * ax + p22 * fdx
+                fdy = p21 * ay + p22 * fdy
+                fdz = p21 * az + p22 * fdz
         # NCF offset (world frame, unchanged by the common gyro step): dn += R (c_ncf - c_lcf); its vertical part is
         # the NCF's own heading (moved by the magnetometer only).
         k = c.k_ncf
@@ -591,7 +705,127 @@ class QuaternionCcf(OrientationFilter):
             dnx + r0x * ux + r0y * uy + r0z * uz,
             dny + r1x * ux + r1y * uy + r1z * uz,
             dnz + k * hn - kd,
+            fdx, fdy, fdz,
         )
+
+    def _ncf_update(  # the arguments are the step's locals: one call per block, no attribute traffic
+        self,
+        c: _Coefficients,
+        bx: float,
+        by: float,
+        bz: float,
+        r0x: float,
+        r0y: float,
+        r0z: float,
+        r1x: float,
+        r1y: float,
+        r1z: float,
+        vx: float,
+        vy: float,
+        vz: float,
+        nx: float,
+        ny: float,
+        nz: float,
+        hi: float,
+        mag_used: bool,
+        w2: float,
+        learn: bool,
+    ) -> tuple[float, float, float]:
+        """The NCF's bias estimate, once per ``c.blk_n`` samples: returns the new bias (rad/s, body).
+
+        Observations: the NCF's tilt error seen in the world frame (east, north) and, with a usable magnetometer, its
+        heading error ``hi``, times ``1/tau_ncf_s``: the rate (rad/s) at which the gyro's attitude drifts from
+        gravity and north. A bias error ``db`` (body) shows there as ``M(R db)``, ``M`` the low-passes it passed
+        (Butterworth then NCF for tilt, NCF alone for heading), ``R`` the body->world rows. The model runs the same
+        low-passes on ``R`` and on ``R b`` (the estimate's own history), so the innovation is
+        ``y + M(R b) - M(R) b``, and ``M(R)`` is the measurement matrix of a Kalman update, one scalar row at a time.
+        """
+        rb0 = r0x * bx + r0y * by + r0z * bz
+        rb1 = r1x * bx + r1y * by + r1z * bz
+        rbv = vx * bx + vy * by + vz * bz
+        model = self._model
+        if model is None:
+            # Seed at a standstill of the low-passes: the Butterworth values (and zero rates) of the tilt
+            # quantities, the NCF outputs of the tilt quantities, and those of the heading ones.
+            tilt = (r0x, r0y, r0z, r1x, r1y, r1z, rb0, rb1)
+            model = self._model = (tilt, (0.0,) * 8, tilt, (vx, vy, vz, rbv))
+        else:
+            # Unrolled (this runs at 50 Hz, and a loop costs half again as much): Butterworth, then NCF low-pass,
+            # of the tilt quantities u; NCF low-pass of the heading ones.
+            (v0, v1, v2, v3, v4, v5, v6, v7), (d0, d1, d2, d3, d4, d5, d6, d7), mt, mh = model
+            a, m12, m21, m22, k = c.m_a, c.m12, c.m21, c.m22, c.k_ncf_blk
+            e0, e1, e2, e3 = v0 - r0x, v1 - r0y, v2 - r0z, v3 - r1x
+            e4, e5, e6, e7 = v4 - r1y, v5 - r1z, v6 - rb0, v7 - rb1
+            v0 += m12 * d0 - a * e0
+            v1 += m12 * d1 - a * e1
+            v2 += m12 * d2 - a * e2
+            v3 += m12 * d3 - a * e3
+            v4 += m12 * d4 - a * e4
+            v5 += m12 * d5 - a * e5
+            v6 += m12 * d6 - a * e6
+            v7 += m12 * d7 - a * e7
+            o0, o1, o2, o3, o4, o5, o6, o7 = mt
+            h0, h1, h2, h3 = mh
+            model = self._model = (
+                (v0, v1, v2, v3, v4, v5, v6, v7),
+                (m21 * e0 + m22 * d0, m21 * e1 + m22 * d1, m21 * e2 + m22 * d2, m21 * e3 + m22 * d3,
+                 m21 * e4 + m22 * d4, m21 * e5 + m22 * d5, m21 * e6 + m22 * d6, m21 * e7 + m22 * d7),
+                (o0 + k * (v0 - o0), o1 + k * (v1 - o1), o2 + k * (v2 - o2), o3 + k * (v3 - o3),
+                 o4 + k * (v4 - o4), o5 + k * (v5 - o5), o6 + k * (v6 - o6), o7 + k * (v7 - o7)),
+                (h0 + k * (vx - h0), h1 + k * (vy - h1), h2 + k * (vz - h2), h3 + k * (rbv - h3)),
+            )
+        p00, p01, p02, p11, p12, p22 = self._p_bias
+        if learn:
+            # Observation noise: (walk tau_bias)² per block, growing with the rotation rate; heading's over cos²(dip).
+            r = c.r_tilt * (1.0 + w2 * c.inv_rot2)
+            k = -c.inv_tau_ncf
+            y0 = k * (r0x * nx + r0y * ny + r0z * nz)
+            y1 = k * (r1x * nx + r1y * ny + r1z * nz)
+            mt, mh = model[2], model[3]
+            # (the row's M(R), its M(R b), the observation, its variance)
+            rows = [(mt[0], mt[1], mt[2], mt[6], y0, r), (mt[3], mt[4], mt[5], mt[7], y1, r)]
+            if mag_used:
+                sd = self._mag_ref[1]
+                rows.append((*mh, k * hi, r / max(1.0 - sd * sd, _COS2_DIP_MIN)))
+            m = c.bias_max
+            for h0, h1, h2, hb, y, ri in rows:
+                nu = y + hb - (h0 * bx + h1 * by + h2 * bz)
+                # One wild observation (a start, a shock) moves the estimate by at most the clamp.
+                nu = m if nu > m else (-m if nu < -m else nu)
+                ph0 = p00 * h0 + p01 * h1 + p02 * h2
+                ph1 = p01 * h0 + p11 * h1 + p12 * h2
+                ph2 = p02 * h0 + p12 * h1 + p22 * h2
+                si = 1.0 / (h0 * ph0 + h1 * ph1 + h2 * ph2 + ri)
+                k0, k1, k2 = ph0 * si, ph1 * si, ph2 * si
+                bx += k0 * nu
+                by += k1 * nu
+                bz += k2 * nu
+                p00 -= k0 * ph0
+                p01 -= k0 * ph1
+                p02 -= k0 * ph2
+                p11 -= k1 * ph1
+                p12 -= k1 * ph2
+                p22 -= k2 * ph2
+        if self.at_rest:
+            # At rest the covariance relaxes to bias_sigma_rest² (the low-passed gyro's own uncertainty).
+            kr = c.keep_rest_blk
+            pr = (1.0 - kr) * c.p_rest
+            p00, p11, p22 = p00 * kr + pr, p11 * kr + pr, p22 * kr + pr
+            p01 *= kr
+            p02 *= kr
+            p12 *= kr
+        else:
+            # The bias random walk: knowledge ages (up to knowing nothing).
+            pi, w = c.p_init, c.walk_blk
+            if p00 < pi:
+                p00 += w
+            if p11 < pi:
+                p11 += w
+            if p22 < pi:
+                p22 += w
+        self._p_bias = (p00, p01, p02, p11, p12, p22)
+        self._u_bias = (p00 + p11 + p22) / (3.0 * c.p_init)
+        return bx, by, bz
 
     def _mag_rejected(self, dt: float, mag_n2: float, norm: float, sin_dip: float) -> bool:
         """Book-keeping for a magnetometer sample outside the acceptance bounds (rare path).
@@ -656,16 +890,21 @@ class QuaternionCcf(OrientationFilter):
 
     @property
     def gyro_bias_sigma_rad_s(self) -> float:
-        """1-σ uncertainty of :attr:`gyro_bias` per axis, rad/s: ``bias_sigma_init_rad_s`` while nothing is known,
-        ``bias_sigma_rest_rad_s`` after a rest, growing back with ``bias_walk_rad_s_sqrt_s`` (it scales the NCF's
-        integral gain and the reported drift variance)."""
+        """1-σ uncertainty of :attr:`gyro_bias`, rad/s, the RMS over the axes of the NCF's covariance:
+        ``bias_sigma_init_rad_s`` while nothing is known, ``bias_sigma_rest_rad_s`` after a rest, shrinking as the
+        NCF learns and growing back with ``bias_walk_rad_s_sqrt_s`` (it scales the reported drift variance)."""
         return self.params.bias_sigma_init_rad_s * sqrt(self._u_bias)
+
+    @property
+    def gyro_bias_covariance(self) -> tuple[float, float, float, float, float, float]:
+        """Covariance of :attr:`gyro_bias`, rad²/s², body frame, as ``(xx, xy, xz, yy, yz, zz)``."""
+        return self._p_bias
 
     @property
     def ncf_quaternion(self) -> Quat:
         """The NCF stage's own attitude ``exp(dn) ⊗ q`` (internal ENU frame), ``(w, x, y, z)``."""
         qw, qx, qy, qz = self._q
-        dx, dy, dz = (0.5 * v for v in self._x[6:])
+        dx, dy, dz = (0.5 * v for v in self._x[6:9])
         # (1, dx, dy, dz) ⊗ q, normalised: first order in the small world-frame rotation dn.
         w = qw - dx * qx - dy * qy - dz * qz
         x = qx + dx * qw + dy * qz - dz * qy

@@ -100,12 +100,11 @@ def cases(rate_hz: float) -> list[tuple[str, str, dict[str, Any], Any, float]]:
         out.append(('fig08_ccf', f'CCF Kp={kp:g} Ki={ki:g} alpha={alpha:g}', euler_ccf_settings(kp, ki, alpha),
                     lambda f, kp=kp, ki=ki: tf_ccf(f, kp, ki, alpha), _slowest(alpha * kp, alpha * ki)))
     p = CcfParams(use_mag=False, rest_bias=False)
-    kf, kn, ka = 1.0 / p.tau_acc_lp_s, 1.0 / p.tau_ncf_s, 1.0 / p.tau_acc_s
-    ki = 1.0 / (p.tau_ncf_s * p.tau_bias_s)
-    slowest = _slowest(kf + kn, kf * kn, ki * kf)
+    # Poles: the Butterworth pair's real part 1/tau_acc_lp_s, the NCF's and the LCF's, and the bias gain.
+    slowest = min(1.0 / p.tau_acc_lp_s, 1.0 / p.tau_ncf_s, 1.0 / p.tau_acc_s, p.bias_gain_per_s)
     out.append(('fig08_ccf', 'ccf_ros cascade (default, from the accelerometer angle)',
                 {'filter': 'ccf', 'rest_bias': False},
-                lambda f: np.array([tilt_transfer(p, float(x))[0] for x in np.atleast_1d(f)]), min(slowest, ka, kf)))
+                lambda f: np.array([tilt_transfer(p, float(x))[0] for x in np.atleast_1d(f)]), slowest))
     return out
 
 

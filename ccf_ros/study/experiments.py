@@ -70,9 +70,10 @@ def quaternion_ccf_settings(kp: float, ki: float, alpha: float) -> dict[str, Any
 
     Per axis the paper's CCF integrates ``rate + Kp (x_a - x) + I`` with ``x = alpha x_g + (1 - alpha) x_a``, so the
     integrator sees the error ``alpha (x_a - x_g)``: proportional rate ``alpha Kp`` (1/s), integral gain ``alpha Ki``
-    (1/s²). The ccf_ros cascade's NCF has gains ``1/tau_ncf_s`` and ``1/(tau_ncf_s tau_bias_s)``, so
-    ``tau_ncf_s = 1/(alpha Kp)`` and ``tau_bias_s = Kp/Ki``; its LCF blends at the same rate (``tau_acc_s =
-    tau_acc_lp_s = tau_ncf_s``), heading three times slower (``tau_mag_s = 3 tau_acc_s``, the defaults' ratio).
+    (1/s²). The ccf_ros cascade's NCF has the proportional gain ``1/tau_ncf_s`` and, in steady motion, the integral
+    gain ``1/(tau_ncf_s tau_bias_s)`` (its Kalman steady state), so ``tau_ncf_s = 1/(alpha Kp)`` and
+    ``tau_bias_s = Kp/Ki``; its LCF blends at the same rate (``tau_acc_s = tau_acc_lp_s = tau_ncf_s``), heading three
+    times slower (``tau_mag_s = 3 tau_acc_s``).
     """
     tau = 1.0 / max(alpha * kp, 1e-9)
     return {
