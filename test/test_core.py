@@ -225,11 +225,11 @@ def test_cascade_matches_its_small_angle_transfer_function(kind, f_hz):
     h = _cascade_response(p, f_hz, kind)
     h_a, h_w = tilt_transfer(p, f_hz)
     ref = h_a if kind == 'acc' else h_w
-    # Measured: within 0.019 dB everywhere (the discrete Kalman's steady state, updated every 20 ms); phase within
-    # 0.06° except the rate path at 0.3 and 1 Hz (0.5°, 1.8°: the estimate is half a sample ahead for point samples,
+    # Measured: within 0.021 dB everywhere (the discrete Kalman's steady state, updated every 40 ms); phase within
+    # 0.081° except the rate path at 0.3 and 1 Hz (0.5°, 1.8°: the estimate is half a sample ahead for point samples,
     # 360° f dt / 2).
-    assert 20 * math.log10(abs(h)) == pytest.approx(20 * math.log10(abs(ref)), abs=0.023)
-    assert np.degrees(np.angle(h / ref)) == pytest.approx(0.0, abs=2.2 if kind == 'rate' and f_hz > 0.1 else 0.075)
+    assert 20 * math.log10(abs(h)) == pytest.approx(20 * math.log10(abs(ref)), abs=0.025)
+    assert np.degrees(np.angle(h / ref)) == pytest.approx(0.0, abs=2.2 if kind == 'rate' and f_hz > 0.1 else 0.1)
     # A single PI stage (the NCF alone, eq 11, as the previous default was) lets far more acceleration through.
     if kind == 'acc' and f_hz == 0.3:
         s = 2j * math.pi * f_hz
@@ -246,10 +246,10 @@ def test_bias_is_learnt_while_moving_without_rest():
     err = np.degrees(np.abs(r.bias - b_true)).max(axis=1)
     t = d.t_s - d.t_s[0]
     assert err[t < 15].max() > 0.5  # it starts far off (nothing is learnt during the 15 s start-up) ...
-    # ... and is within 0.1 °/s from 60 s on, the figure the README states (measured: from 42 s; at most 0.039 °/s
-    # after 60 s, 0.0072 °/s at the end).
+    # ... and is within 0.1 °/s from 60 s on, the figure the README states (measured: from 42 s; at most 0.042 °/s
+    # after 60 s, 0.0086 °/s at the end).
     assert err[t >= 60].max() < 0.1, err[t >= 60].max()
-    assert err[-1] < 0.0087, err[-1]
+    assert err[-1] < 0.0103, err[-1]
 
 
 def test_bias_estimate_is_clamped_per_axis():
@@ -410,7 +410,7 @@ def test_sample_timing_constant_rotation_at_40_hz(averaged):
     est = 2 * np.arctan2(q[:, 1], q[:, 0])
     err = np.degrees(np.angle(np.exp(1j * (est - (th1[-400:] + lead)))))
     assert np.abs(q[:, 2:]).max() < 1e-6
-    assert np.abs(err).max() < 0.05, np.abs(err).max()  # measured 0.041 (first-order half-step rotation)
+    assert np.abs(err).max() < 0.037, np.abs(err).max()  # measured 0.031 (first-order half-step rotation)
     assert np.degrees(np.abs(filt.gyro_bias).max()) < 0.0074  # °/s; measured 0.0061
 
 
@@ -548,7 +548,7 @@ def test_a_large_heading_error_is_not_learnt_as_gyro_bias():
         bias.append(f.gyro_bias)
     bias = np.degrees(np.abs(bias))
     assert bias[t > 10.0].max() < 0.042  # °/s; measured 0.035
-    assert bias[-1].max() < 0.006  # measured 0.0048
+    assert bias[-1].max() < 0.0062  # measured 0.0051
 
 
 @pytest.mark.parametrize('motion_bias', [False, True])
@@ -579,9 +579,9 @@ def test_bias_uncertainty_schedule_rest_makes_it_small_motion_lets_it_grow(motio
         assert err_end == err_rest
     else:
         # Learning while moving holds the uncertainty below the walk's (measured 0.045 against 0.077 °/s) and
-        # improves on the rest estimate (error measured 0.0057 against 0.0141 °/s).
+        # improves on the rest estimate (error measured 0.0077 against 0.0141 °/s).
         assert sigma[end_rest:].max() ** 2 < 0.42 * (sigma[end_rest] ** 2 + grow)  # measured 0.35
-        assert err_end < 0.0069 and err_rest > 2 * err_end, (err_end, err_rest)
+        assert err_end < 0.0093 and err_rest > 1.5 * err_end, (err_end, err_rest)
 
 
 def test_a_longer_rest_min_s_set_live_ends_the_rest_until_the_timer_reaches_it():

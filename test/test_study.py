@@ -262,3 +262,10 @@ def test_claim6_needs_a_run_long_enough_to_see_a_drift():
     assert claim6_long_run(long_run([2.8]), QUATERNION).verdict.startswith('not measured: 1 window(s) of 100 s')
     assert claim6_long_run(long_run([1.0] * 72), QUATERNION).verdict == 'holds (over 2 h)'
     assert claim6_long_run(long_run([1.0] * 60 + [3.0] * 12), QUATERNION).verdict == 'does not hold: the error grows'
+    # Judged by the trend over every window, not by two fifths: errors that scatter with the motion (here a slow
+    # wave whose last fifth averages 1.34x its first, trend 1.06x) hold; a steady rise of a third does not.
+    wave = [0.2 + 0.06 * math.sin(2 * math.pi * (i / 48 + 0.75)) for i in range(72)]
+    assert sum(wave[-14:]) > 1.3 * sum(wave[1:15])
+    assert claim6_long_run(long_run(wave), QUATERNION).verdict == 'holds (over 2 h)'
+    rise = [0.2 * (1 + 0.33 * i / 71) for i in range(72)]
+    assert claim6_long_run(long_run(rise), QUATERNION).verdict == 'does not hold: the error grows'

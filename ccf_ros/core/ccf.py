@@ -23,7 +23,7 @@ accelerometer/magnetometer attitude — made to work in 3-D, at any sample rate,
    (``bias_rotation_rad_s``: scale-factor and misalignment errors make a rotation look like bias). ``P`` starts at
    ``bias_sigma_init_rad_s²``, relaxes to ``bias_sigma_rest_rad_s²`` at rest (where the bias is pulled to the
    low-passed gyro, which is far more informative) and grows with ``bias_walk_rad_s_sqrt_s``, so a bias learnt at
-   rest is refined slowly at first and more readily as it ages. The bias update runs every ~20 ms of samples.
+   rest is refined slowly at first and more readily as it ages. The bias update runs every ~40 ms of samples.
 2. **LCF (output stage).** The published attitude ``q`` integrates the bias-corrected rate and is blended towards
    ``g_lp`` (inclination, time constant ``tau_acc_s``) and towards the magnetometer heading (rotation about world
    up only, ``tau_mag_s``), so a magnetic disturbance never tilts the estimate. A field whose norm or dip departs from
@@ -78,9 +78,10 @@ _HEAD_ERR_MAX = 5.0 * _DEG
 _HEAD_ERR_MAX2 = _HEAD_ERR_MAX * _HEAD_ERR_MAX
 #: The new-field timer loses this many seconds per second of samples that disagree with the candidate.
 _LEAK = 3.0
-#: The NCF's bias update runs once per this many seconds of samples (every sample below 50 Hz): the observations
-#: are low-passed over seconds, so sampling them at 50 Hz loses nothing and saves most of the matrix arithmetic.
-BIAS_UPDATE_PERIOD_S = 0.02
+#: The NCF's bias update runs once per this many seconds of samples (every sample below 25 Hz): the tilt observations
+#: are low-passed over seconds and the heading ones averaged over the block, so 25 updates a second lose nothing
+#: (BROAD's mean error moves by 0.005° between 50 and 25 Hz) and save most of the matrix arithmetic.
+BIAS_UPDATE_PERIOD_S = 0.04
 #: cos²(dip) is floored at this when the heading observations' noise is scaled by 1/cos²(dip) (near a magnetic pole
 #: the horizontal field, and so heading, is lost in the tilt error).
 _COS2_DIP_MIN = 0.05
@@ -331,7 +332,7 @@ class QuaternionCcf(OrientationFilter):
 
     name = 'ccf'
     __slots__ = (
-        '_blk', '_coef', '_gyro_lp', '_heading_known', '_mag_bounds', '_mag_candidate', '_mag_have_ref',
+        '_coef', '_gyro_lp', '_heading_known', '_mag_bounds', '_mag_candidate', '_mag_have_ref',
         '_mag_learn_n', '_mag_learn_s', '_mag_new_s', '_mag_ref', '_mag_rejected_t', '_model', '_n_init', '_p_bias',
         '_rest_s', '_u_bias', '_var_head', '_var_incl', '_x',
     )
@@ -343,8 +344,9 @@ class QuaternionCcf(OrientationFilter):
     def _reset_state(self) -> None:
         # The per-sample state in one tuple (one load and one store per sample): the gyro bias b (rad/s, body), the
         # filtered gravity g_lp (m/s², body), the NCF's offset dn (rad, world) and g_lp's rate (m/s³, body), 3
-        # values each.
-        self._x = (0.0, 0.0, 0.0, 0.0, 0.0, GRAVITY_M_S2, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        # values each; then the NCF heading errors summed over the current block (rad) and how many, and the
+        # samples left until the next NCF bias update.
+        self._x = (0.0, 0.0, 0.0, 0.0, 0.0, GRAVITY_M_S2, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0, 0)
         self._coef = _Coefficients.of(self.params, 0.0)
         self._gyro_lp = (0.0, 0.0, 0.0)
         self._rest_s = 0.0
@@ -358,8 +360,7 @@ class QuaternionCcf(OrientationFilter):
         self._p_bias = (p0, 0.0, 0.0, p0, 0.0, p0)
         # Mean bias variance relative to bias_sigma_init² (for the drift variances): 1 = nothing learnt yet.
         self._u_bias = 1.0
-        # Samples until the next NCF bias update; its observation model's low-pass states (None: seed at the next).
-        self._blk = 0
+        # The NCF observation model's low-pass states (None: seed at the next bias update).
         self._model: tuple[tuple[float, ...], ...] | None = None
 
     def _forget_mag_reference(self) -> None:
@@ -442,7 +443,7 @@ class QuaternionCcf(OrientationFilter):
                 self._heading_known = False
         self._q = q
         bias = self._x[:3]
-        self._x = (*bias, ax, ay, az, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        self._x = (*bias, ax, ay, az, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0, 0)
         self._gyro_lp = bias
         self._rest_s = 0.0
         self.at_rest = False
@@ -475,7 +476,7 @@ class QuaternionCcf(OrientationFilter):
         if not c.dt_lo <= dt <= c.dt_hi:
             c = self._coef = _Coefficients.of(self.params, dt)
         qw, qx, qy, qz = self._q
-        bx, by, bz, fx, fy, fz, dnx, dny, dnz, fdx, fdy, fdz = self._x
+        bx, by, bz, fx, fy, fz, dnx, dny, dnz, fdx, fdy, fdz, h_sum, h_n, blk = self._x
         # Rows of the body->world rotation matrix: world east (r0), north (r1) and up (v) in body coordinates.
         # (Twice the products: x2 = 2 qx etc. saves the factor 2 of every matrix element.)
         x2, y2, z2 = qx + qx, qy + qy, qz + qz
@@ -512,8 +513,7 @@ class QuaternionCcf(OrientationFilter):
         nx = ex - dnx * r0x - dny * r1x
         ny = ey - dnx * r0y - dny * r1y
         nz = ez - dnx * r0z - dny * r1z
-        hn = kd = hi = 0.0
-        mag_used = False
+        hn = kd = 0.0
         if mag_n2:
             norm = sqrt(mag_n2)
             sin_dip = (vx * mx + vy * my + vz * mz) / norm
@@ -537,8 +537,8 @@ class QuaternionCcf(OrientationFilter):
                 elif hn < -_PI:
                     hn += _TWO_PI
                 if hn * hn < _HEAD_ERR_MAX2 and dnz * dnz < _HEAD_ERR_MAX2:
-                    hi = hn
-                    mag_used = True
+                    h_sum += hn
+                    h_n += 1
                 cx += kd * vx
                 cy += kd * vy
                 cz += kd * vz
@@ -558,17 +558,18 @@ class QuaternionCcf(OrientationFilter):
         else:
             self._var_incl = _drift(self._var_incl, c.sigma_init * sqrt(self._u_bias) * dt, c.var_arw)
         # NCF integral: a Kalman update of the bias once per block of samples (see _ncf_update).
-        blk = self._blk - 1
+        blk -= 1
         if blk <= 0:
-            blk = c.blk_n
             bx, by, bz = self._ncf_update(
-                c, bx, by, bz, r0x, r0y, r0z, r1x, r1y, r1z, vx, vy, vz, nx, ny, nz, hi, mag_used,
+                c, bx, by, bz, r0x, r0y, r0z, r1x, r1y, r1z, vx, vy, vz, nx, ny, nz, h_sum, h_n,
                 gx * gx + gy * gy + gz * gz,
                 # Not during the start-up (ni): the errors then are the initial attitude's, not the bias's; not at
                 # rest, where the low-passed gyro below is far more informative; not without an accelerometer.
                 c.learn and not (ni or self.at_rest) and acc_n2 != 0.0,
             )
-        self._blk = blk
+            blk = c.blk_n
+            h_sum = 0.0
+            h_n = 0
         if c.rest_bias:
             # Rest: the accelerometer within rest_acc_m_s2 of the filtered gravity (tested first: it fails first
             # while moving, and then nothing else is needed), and the gyro within rest_gyro_rad_s of its low-pass.
@@ -705,7 +706,7 @@ class QuaternionCcf(OrientationFilter):
             dnx + r0x * ux + r0y * uy + r0z * uz,
             dny + r1x * ux + r1y * uy + r1z * uz,
             dnz + k * hn - kd,
-            fdx, fdy, fdz,
+            fdx, fdy, fdz, h_sum, h_n, blk,
         )
 
     def _ncf_update(  # the arguments are the step's locals: one call per block, no attribute traffic
@@ -726,15 +727,16 @@ class QuaternionCcf(OrientationFilter):
         nx: float,
         ny: float,
         nz: float,
-        hi: float,
-        mag_used: bool,
+        h_sum: float,
+        h_n: int,
         w2: float,
         learn: bool,
     ) -> tuple[float, float, float]:
         """The NCF's bias estimate, once per ``c.blk_n`` samples: returns the new bias (rad/s, body).
 
         Observations: the NCF's tilt error seen in the world frame (east, north) and, with a usable magnetometer, its
-        heading error ``hi``, times ``1/tau_ncf_s``: the rate (rad/s) at which the gyro's attitude drifts from
+        heading error (the mean of the block's ``h_n`` samples that qualified, summing to ``h_sum``: a magnetometer
+        sample's heading is noisy, the tilt error is low-passed), times ``1/tau_ncf_s``: the rate (rad/s) at which the gyro's attitude drifts from
         gravity and north. A bias error ``db`` (body) shows there as ``M(R db)``, ``M`` the low-passes it passed
         (Butterworth then NCF for tilt, NCF alone for heading), ``R`` the body->world rows. The model runs the same
         low-passes on ``R`` and on ``R b`` (the estimate's own history), so the innovation is
@@ -750,7 +752,7 @@ class QuaternionCcf(OrientationFilter):
             tilt = (r0x, r0y, r0z, r1x, r1y, r1z, rb0, rb1)
             model = self._model = (tilt, (0.0,) * 8, tilt, (vx, vy, vz, rbv))
         else:
-            # Unrolled (this runs at 50 Hz, and a loop costs half again as much): Butterworth, then NCF low-pass,
+            # Unrolled (this runs at 25 Hz, and a loop costs half again as much): Butterworth, then NCF low-pass,
             # of the tilt quantities u; NCF low-pass of the heading ones.
             (v0, v1, v2, v3, v4, v5, v6, v7), (d0, d1, d2, d3, d4, d5, d6, d7), mt, mh = model
             a, m12, m21, m22, k = c.m_a, c.m12, c.m21, c.m22, c.k_ncf_blk
@@ -784,9 +786,10 @@ class QuaternionCcf(OrientationFilter):
             mt, mh = model[2], model[3]
             # (the row's M(R), its M(R b), the observation, its variance)
             rows = [(mt[0], mt[1], mt[2], mt[6], y0, r), (mt[3], mt[4], mt[5], mt[7], y1, r)]
-            if mag_used:
+            if h_n:
+                # The block's mean heading error; its variance grows as fewer of the block's samples qualified.
                 sd = self._mag_ref[1]
-                rows.append((*mh, k * hi, r / max(1.0 - sd * sd, _COS2_DIP_MIN)))
+                rows.append((*mh, k * h_sum / h_n, r * c.blk_n / (h_n * max(1.0 - sd * sd, _COS2_DIP_MIN))))
             m = c.bias_max
             for h0, h1, h2, hb, y, ri in rows:
                 nu = y + hb - (h0 * bx + h1 * by + h2 * bz)

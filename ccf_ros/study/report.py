@@ -96,8 +96,8 @@ def _verdicts_section(results: dict[str, Any]) -> list[str]:
         '',
         f'Thresholds: "barely changes" = range of the dataset-mean error within {FLAT_REL:.0%} of its median; '
         f'"beats"/"as accurate" = more than {BETTER_REL:.0%} apart; "much cheaper" = at least {COST_RATIO:g}x; '
-        f'"stays accurate" = last-fifth window RMSE within {DRIFT_REL:g}x of the early windows and a mean below '
-        f'{ACCURATE_DEG:g} deg.',
+        f'"stays accurate" = the least-squares trend of the window RMSE ends within {DRIFT_REL:g}x of where it '
+        f'starts and a mean below {ACCURATE_DEG:g} deg.',
         '',
         verdicts_table(results),
         '',
