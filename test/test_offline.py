@@ -74,7 +74,7 @@ def test_replay_answers_every_sample_as_the_batch_path_does(sim_bag, tmp_path, c
                           np.where(q_est[:, :1] < 0, -q_est, q_est))
     s = evaluate(load_aligned(out, '/ground_truth/pose', reference_bag=sim_bag, mask_topic='/ground_truth/moving'))
     assert s.n_missing == 0 and s.n_scored > 10000
-    assert s.total_rmse_deg < 2.0  # clean simulated hand-held motion
+    assert s.total_rmse_deg < 0.76  # clean simulated hand-held motion: measured 0.63 deg
 
 
 def test_replay_is_accurate_on_a_real_trial(short_trial, tmp_path):
@@ -82,7 +82,7 @@ def test_replay_is_accurate_on_a_real_trial(short_trial, tmp_path):
     assert ccf(['replay', str(short_trial), '-o', str(out)]) == 0
     s = evaluate(load_aligned(out, '/ground_truth/pose', reference_bag=short_trial, mask_topic='/ground_truth/moving'))
     assert s.n_missing == 0 and s.n_scored > 1000
-    assert s.total_rmse_deg < 3.0  # VQF online scores 1.38 deg on this whole trial, Madgwick 1.67
+    assert s.total_rmse_deg < 0.87  # measured 0.72 deg (VQF online scores 1.38 deg on this whole trial, Madgwick 1.67)
 
 
 def test_replay_survives_injected_faults(faulty_sim, tmp_path, capsys):
@@ -116,7 +116,7 @@ def test_replay_survives_injected_faults(faulty_sim, tmp_path, capsys):
     after = t_ref > t_ref[0] + 76.0  # ~10 s after the re-initialisation
     s = summarize(align(t_est[advanced], q_est[advanced], t_ref[after], q_ref[after]), q_ref[after])
     assert s.n_missing == 0
-    assert s.total_rmse_deg < 5.0
+    assert s.total_rmse_deg < 2.6  # measured 2.14 deg
 
 
 

@@ -734,13 +734,14 @@ class QuaternionCcf(OrientationFilter):
     ) -> tuple[float, float, float]:
         """The NCF's bias estimate, once per ``c.blk_n`` samples: returns the new bias (rad/s, body).
 
-        Observations: the NCF's tilt error seen in the world frame (east, north) and, with a usable magnetometer, its
-        heading error (the mean of the block's ``h_n`` samples that qualified, summing to ``h_sum``: a magnetometer
-        sample's heading is noisy, the tilt error is low-passed), times ``1/tau_ncf_s``: the rate (rad/s) at which the gyro's attitude drifts from
-        gravity and north. A bias error ``db`` (body) shows there as ``M(R db)``, ``M`` the low-passes it passed
-        (Butterworth then NCF for tilt, NCF alone for heading), ``R`` the body->world rows. The model runs the same
-        low-passes on ``R`` and on ``R b`` (the estimate's own history), so the innovation is
-        ``y + M(R b) - M(R) b``, and ``M(R)`` is the measurement matrix of a Kalman update, one scalar row at a time.
+        Observations: the NCF's tilt error (rad, body; ``nx, ny, nz``) seen in the world frame (east, north) and,
+        with a usable magnetometer, its heading error (the mean of the block's ``h_n`` samples that qualified,
+        summing to ``h_sum`` rad: a magnetometer sample's heading is noisy, the tilt error is low-passed), times
+        ``1/tau_ncf_s``: the rate (rad/s) at which the gyro's attitude drifts from gravity and north. A bias error
+        ``db`` (body) shows there as ``M(R db)``, ``M`` the low-passes it passed (Butterworth then NCF for tilt, NCF
+        alone for heading), ``R`` the body->world rows ``r0, r1, v``. The model runs the same low-passes on ``R`` and
+        on ``R b`` (the estimate's own history), so the innovation is ``y + M(R b) - M(R) b``, and ``M(R)`` is the
+        measurement matrix of a Kalman update, one scalar row at a time. ``w2``: the squared gyro rate, rad²/s².
         """
         rb0 = r0x * bx + r0y * by + r0z * bz
         rb1 = r1x * bx + r1y * by + r1z * bz

@@ -81,10 +81,11 @@ def _intro(results: dict[str, Any], command: str) -> list[str]:
         'Cells are **BROAD total RMSE in degrees / the paper\'s mean RMSE (eq 17) in radians**, over the scored '
         '(moving) samples; a sample without an estimate counts as 180 deg. "euler" is the paper\'s per-axis form, '
         '"quaternion" the ccf_ros default: an NCF -> LCF cascade on unit quaternions (the NCF, a PI stage with its own '
-        'attitude, estimates the gyro bias; the LCF integrates the bias-corrected gyro and blends it with the '
-        'accelerometer, low-passed in the gyro-carried frame, and the magnetometer heading). The quaternion form\'s '
-        'NCF is Mahony\'s filter, and the ccf_ros CCF takes the paper\'s gains as tau_ncf_s = tau_acc_s = '
-        'tau_acc_lp_s = 1/(alpha Kp), tau_mag_s = 3 tau_acc_s, tau_bias_s = Kp/Ki.',
+        'attitude whose integral, a Kalman filter, estimates the gyro bias; the LCF integrates the bias-corrected gyro '
+        'and blends it with the accelerometer, low-passed in the gyro-carried frame, and the magnetometer heading). '
+        'The quaternion form\'s NCF is Mahony\'s filter, and the ccf_ros CCF takes the paper\'s gains as tau_ncf_s = '
+        'tau_acc_s = tau_acc_lp_s = 1/(alpha Kp), tau_mag_s = 3 tau_acc_s, tau_bias_s = Kp/Ki (its integral gain in '
+        'steady motion is 1/(tau_ncf_s tau_bias_s)).',
         '',
     ]
     return lines
