@@ -1,9 +1,11 @@
 """Accuracy of the defaults on simulated recordings unlike BROAD: other rates, noisier sensors, larger linear
-accelerations, faster rotation, a drifting bias. A check that the defaults were not fitted to the nine BROAD trials.
+accelerations, faster rotation, a drifting bias, a ground vehicle. A check that the defaults were not fitted to the
+nine BROAD trials.
 
-Each scenario is ``ccf simulate``'s hand-held motion (240 s, a 5 s rest first, uniform field) with one thing changed;
-three seeds each. Prints the mean total and inclination RMSE (9-D) and the 6-D total with one heading offset fitted,
-degrees, over the moving samples.
+Each scenario is ``ccf simulate``'s hand-held motion (240 s, a 5 s rest first, uniform field) with one thing changed,
+or its ground vehicle (``ccf simulate --motion vehicle``: accelerations and braking that last seconds, turns, stops,
+slopes); three seeds each. Prints the mean total and inclination RMSE (9-D) and the 6-D total with one heading
+offset fitted, degrees, over the moving samples.
 
 Usage: python benchmarks/simulated_accuracy.py [--seeds 0,1,2] [NAME=VALUE ...]
 """
@@ -18,7 +20,7 @@ from _trials import map_trials
 
 from ccf_ros.core import run_batch
 from ccf_ros.core.metrics import fitted_total_rmse_deg, summarize
-from ccf_ros.offline.simulate import generate
+from ccf_ros.offline.simulate import generate, generate_vehicle
 from ccf_ros.settings import build
 
 #: name -> (what it is, keyword arguments of ccf_ros.offline.simulate.generate)
@@ -36,12 +38,18 @@ SCENARIOS: dict[str, tuple[str, dict[str, Any]]] = {
     'thermal drift': ('100 Hz, the bias drifting by 0.3 °/s over 2 min', {'rate_hz': 100.0,
                                                                           'bias_drift_rad_s': np.radians(0.3),
                                                                           'bias_drift_period_s': 120.0}),
+    'vehicle 100 Hz': ('a ground vehicle, 0.3-1.5 m/s² for 2-6 s, turns, stops, slopes', {'vehicle': True}),
+    'vehicle 50 Hz, hard': ('the same at 50 Hz, 1-3 m/s²', {'vehicle': True, 'rate_hz': 50.0,
+                                                            'accel_m_s2': (1.0, 3.0)}),
 }
 
 
 def run(args: tuple[str, int, dict[str, str]]) -> tuple[str, tuple[float, float, float]]:
     name, seed, settings = args
-    d = generate(duration_s=240.0, seed=seed, **SCENARIOS[name][1])
+    kw = dict(SCENARIOS[name][1])
+    d = generate_vehicle(duration_s=240.0, seed=seed, **kw) if kw.pop('vehicle', False) else generate(
+        duration_s=240.0, seed=seed, **kw
+    )
     f9, _ = build(settings)
     q9 = run_batch(f9, d.t_s, d.gyr, d.acc, d.mag).quat
     s9 = summarize(q9, d.q_true, d.moving)

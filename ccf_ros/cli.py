@@ -159,11 +159,13 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from .offline.simulate import generate, write_bag
+    from .offline.simulate import generate, generate_vehicle, write_bag
 
-    data = generate(args.duration, args.rate, args.seed)
+    make = generate_vehicle if args.motion == 'vehicle' else generate
+    data = make(args.duration, args.rate, args.seed)
     write_bag(data, args.output, overwrite=args.overwrite, storage=args.storage)
-    print(f'wrote {args.output}: {len(data.t_s)} samples, {args.duration:g} s at {args.rate:g} Hz, seed {args.seed}')
+    print(f'wrote {args.output}: {len(data.t_s)} samples, {args.duration:g} s at {args.rate:g} Hz, {args.motion} '
+          f'motion, seed {args.seed}')
     return 0
 
 
@@ -404,6 +406,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument('--duration', type=float, default=60.0, help='duration, s')
     s.add_argument('--rate', type=float, default=286.0, help='IMU and magnetometer rate, Hz')
     s.add_argument('--seed', type=int, default=0, help='random seed (same seed, same bag)')
+    s.add_argument('--motion', choices=('hand', 'vehicle'), default='hand',
+                   help='hand-held motion, or a ground vehicle (accelerations and braking that last seconds, turns, '
+                        'stops, slopes)')
     s.add_argument('--overwrite', action='store_true', help='replace an existing output bag')
     s.add_argument('--storage', choices=STORAGES, default='mcap', help='output storage')
     s.set_defaults(func=cmd_simulate)

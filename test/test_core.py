@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from ccf_ros.core import CcfParams, EulerCcf, EulerCcfParams, QuaternionCcf, Status, make_filter, run_batch
+from ccf_ros.core.metrics import summarize
 from ccf_ros.core.quaternion import WORLD_FRAMES, quat_mul, quat_rotate
 from ccf_ros.offline.simulate import generate
 
@@ -162,7 +163,7 @@ def test_quaternion_ccf_estimates_a_constant_gyro_bias():
     d = generate(120.0, 200.0, seed=5, bias_init_rad_s=np.radians(1.0), bias_walk_rad_s_sqrt_s=0.0)
     r = run_batch(QuaternionCcf(), d.t_s, d.gyr, d.acc, d.mag)
     err = np.degrees(np.abs(r.bias[-1] - d.bias[-1]))
-    assert np.all(err < 0.15), err
+    assert np.all(err < 0.0063), err  # °/s, measured 0.0053
     assert np.all(r.status[1:] == Status.UPDATED)
 
 
@@ -191,7 +192,8 @@ def _cascade_response(p: CcfParams, f_hz: float, kind: str, rate_hz: float = 100
     (``rate``, rad per rad/s), gyro otherwise silent, no magnetometer."""
     from ccf_ros.core.ccf import GRAVITY_M_S2
 
-    amp = 0.05 if kind == 'acc' else 0.05 * 2 * math.pi * f_hz
+    # Small signals (0.3°): the NCF's gate on its observations (3 sigma, ~0.5°/s) must not cut in.
+    amp = 0.005 if kind == 'acc' else 0.005 * 2 * math.pi * f_hz
     # The NCF's bias covariance reaches its steady state in ~10 tau_bias_s; the low-passes settle in ~6 delays.
     settle = max(3.0 / f_hz, 10.0 * p.tau_bias_s, 6.0 * (p.tau_acc_s + p.tau_acc_lp_s + p.tau_ncf_s))
     fit = math.ceil(max(4.0 / f_hz, 10.0) * f_hz) / f_hz
@@ -225,11 +227,11 @@ def test_cascade_matches_its_small_angle_transfer_function(kind, f_hz):
     h = _cascade_response(p, f_hz, kind)
     h_a, h_w = tilt_transfer(p, f_hz)
     ref = h_a if kind == 'acc' else h_w
-    # Measured: within 0.021 dB everywhere (the discrete Kalman's steady state, updated every 40 ms); phase within
-    # 0.081° except the rate path at 0.3 and 1 Hz (0.5°, 1.8°: the estimate is half a sample ahead for point samples,
-    # 360° f dt / 2).
-    assert 20 * math.log10(abs(h)) == pytest.approx(20 * math.log10(abs(ref)), abs=0.025)
-    assert np.degrees(np.angle(h / ref)) == pytest.approx(0.0, abs=2.2 if kind == 'rate' and f_hz > 0.1 else 0.1)
+    # The rate path's estimate is half a sample ahead for point samples (360° f dt / 2 at the test's 100 Hz).
+    lead = 180.0 * f_hz / 100.0 if kind == 'rate' else 0.0
+    # Measured: within 0.018 dB (the discrete Kalman's steady state, updated every 40 ms) and 0.077° after the lead.
+    assert 20 * math.log10(abs(h)) == pytest.approx(20 * math.log10(abs(ref)), abs=0.022)
+    assert np.degrees(np.angle(h / ref)) - lead == pytest.approx(0.0, abs=0.093)
     # A single PI stage (the NCF alone, eq 11, as the previous default was) lets far more acceleration through.
     if kind == 'acc' and f_hz == 0.3:
         s = 2j * math.pi * f_hz
@@ -245,11 +247,97 @@ def test_bias_is_learnt_while_moving_without_rest():
     r = run_batch(make_filter({'rest_bias': False}), d.t_s, d.gyr + b_true, d.acc, d.mag)
     err = np.degrees(np.abs(r.bias - b_true)).max(axis=1)
     t = d.t_s - d.t_s[0]
-    assert err[t < 15].max() > 0.5  # it starts far off (nothing is learnt during the 15 s start-up) ...
-    # ... and is within 0.1 °/s from 60 s on, the figure the README states (measured: from 42 s; at most 0.042 °/s
+    assert np.all(err[t < 14.9] == 1.0)  # nothing is learnt during the 15 s start-up ...
+    # ... and it is within 0.1 °/s from 60 s on, the figure the README states (measured: from 42 s; at most 0.042 °/s
     # after 60 s, 0.0086 °/s at the end).
-    assert err[t >= 60].max() < 0.1, err[t >= 60].max()
+    assert err[t >= 60].max() < 0.05, err[t >= 60].max()
     assert err[-1] < 0.0103, err[-1]
+
+
+def test_bursts_of_stamps_do_not_stall_the_bias_update():
+    """A driver that stamps on arrival reads in bursts (here 4 samples 10 µs apart every 20 ms): the NCF's update is
+    due when its block spans 40 ms of stamps, not a number of samples sized from the latest step (a block sized from
+    a 10 µs step waited minutes: the bias stayed 1.2 °/s off)."""
+    d = generate(300.0, 200.0, seed=2, bias_init_rad_s=0.0, bias_walk_rad_s_sqrt_s=0.0, rest_s=0.0)
+    b_true = np.radians([1.0, -1.0, 1.0])
+    k = np.arange(len(d.t_s))
+    t = d.t_s[0] + (k // 4) * 0.02 + (k % 4) * 1e-5
+    r = run_batch(make_filter({'rest_bias': False}), t, d.gyr + b_true, d.acc, d.mag)
+    err = np.degrees(np.abs(r.bias - b_true)).max(axis=1)
+    assert err[t - t[0] >= 120].max() < 0.033  # °/s, measured 0.027
+    assert err[-1] < 0.0115  # measured 0.0096 (regular stamps: 0.0086)
+
+
+def test_a_drive_off_is_not_learnt_as_bias():
+    """After a rest (the bias known), a robot drives off at 1 m/s² for 10 s while weaving (yaw ±30°/s): the
+    accelerometer tilts by 5.8° while the gyro says no tilt. The NCF does not use observations beyond 3 sigma of what
+    the bias uncertainty and the accelerometer's own error explain (measured 0.13 °/s of false bias; with the gate
+    off 0.33)."""
+    import ccf_ros.core.ccf as ccf_module
+
+    rate = 200.0
+    t = np.arange(int(60 * rate)) / rate
+    b_true = np.radians([0.3, -0.2, 0.1])
+    gyr = np.tile(b_true, (len(t), 1))
+    acc = np.tile([0.0, 0.0, 9.80665], (len(t), 1))
+    drive = (t >= 20.0) & (t < 30.0)
+    gyr[drive, 2] += np.radians(30.0) * np.sin(2 * np.pi * 0.5 * (t[drive] - 20.0))
+    acc[drive, 0] = 1.0
+
+    def false_bias() -> float:
+        r = run_batch(QuaternionCcf(), t, gyr, acc)
+        return float(np.degrees(np.abs(r.bias - b_true)).max(axis=1)[t >= 20.0].max())
+
+    gated = false_bias()
+    assert gated < 0.16, gated
+    gate = ccf_module._GATE2
+    try:
+        ccf_module._GATE2 = math.inf
+        assert false_bias() > 2 * gated  # the gate is what keeps it out
+    finally:
+        ccf_module._GATE2 = gate
+
+
+def test_set_params_with_the_same_values_changes_nothing():
+    """The node applies a parameter change through set_params (here, mid-motion, the same values): the estimate must
+    go on as if nothing happened (rebuilding the NCF's observation model lost its memory: 0.0044° off)."""
+    d = generate(60.0, 200.0, seed=9)
+    plain = run_batch(QuaternionCcf(), d.t_s, d.gyr, d.acc, d.mag).quat
+    f = QuaternionCcf()
+    half = len(d.t_s) // 2
+    first = run_batch(f, d.t_s[:half], d.gyr[:half], d.acc[:half], d.mag[:half]).quat
+    f.set_params(dataclasses.replace(f.params))
+    second = run_batch(f, d.t_s[half:], d.gyr[half:], d.acc[half:], d.mag[half:]).quat
+    np.testing.assert_array_equal(np.vstack((first, second)), plain)
+
+
+def test_extreme_bias_uncertainties_keep_the_covariance_valid():
+    """A prior far wider than the walk (1000 rad/s against 1e-8 rad/s/√s) once left a variance a hair below zero, and
+    the square root of the reported uncertainty raised in update()."""
+    d = generate(40.0, 200.0, seed=10)
+    f = QuaternionCcf(CcfParams(bias_sigma_init_rad_s=1e3, bias_walk_rad_s_sqrt_s=1e-8))
+    r = run_batch(f, d.t_s, d.gyr, d.acc, np.where((np.arange(len(d.t_s)) % 7 == 0)[:, None], np.nan, d.mag))
+    assert np.all(np.isfinite(r.quat)) and np.all(np.isfinite(r.variance))
+    assert f.gyro_bias_sigma_rad_s >= 0.0
+
+
+def test_a_corrupted_accelerometer_sample_does_not_end_a_rest():
+    """One unusable accelerometer sample in a hundred neither extends nor ends a rest: before, no rest lasted the
+    1.5 s it needs, the bias went unlearnt and the error rose from 0.63° to 1.65°."""
+    d = generate(120.0, 200.0, seed=3)
+    acc = d.acc.copy()
+    acc[::100] = np.nan
+    out = {}
+    for name, a in (('clean', d.acc), ('corrupted', acc)):
+        f = QuaternionCcf()
+        rest, q = [], []
+        for k in range(len(d.t_s)):
+            f.update(float(d.t_s[k]), tuple(d.gyr[k]), tuple(a[k]), tuple(d.mag[k]))
+            rest.append(f.at_rest)
+            q.append(f.quaternion)
+        out[name] = (np.mean(rest), summarize(np.array(q), d.q_true, d.moving).total_rmse_deg)
+    assert out['corrupted'][0] > 0.9 * out['clean'][0] > 0.0  # measured 0.0290 and 0.0292 of the samples
+    assert out['corrupted'][1] < 1.05 * out['clean'][1]  # measured 0.555 and 0.547 deg
 
 
 def test_bias_estimate_is_clamped_per_axis():
@@ -414,6 +502,23 @@ def test_sample_timing_constant_rotation_at_40_hz(averaged):
     assert np.degrees(np.abs(filt.gyro_bias).max()) < 0.0074  # °/s; measured 0.0061
 
 
+def test_sample_timing_of_the_magnetometer_at_40_hz():
+    """Yaw at 90 °/s, 40 Hz, the magnetometer's samples means over the interval before the stamp like the gyro's:
+    the field is compared with the attitude at the step's start, so it is carried back half a step. The heading is
+    then the frame at the stamp (measured 0.0016°; compared as it came, half a step late: 1.13°)."""
+    rate, w = 40.0, math.radians(90.0)
+    dt = 1.0 / rate
+    t = np.arange(1, 4801) * dt
+    # The field in ENU (0, 20, -40) µT seen from a body yawed by w t, averaged over each interval.
+    psi = w * (t[:, None] - dt + dt * np.linspace(0.0, 1.0, 201)[None, :])
+    mag = np.stack((20.0 * np.sin(psi).mean(1), 20.0 * np.cos(psi).mean(1), np.full(len(t), -40.0)), 1)
+    gyr = np.tile([0.0, 0.0, w], (len(t), 1))
+    acc = np.tile([0.0, 0.0, 9.80665], (len(t), 1))
+    q = run_batch(QuaternionCcf(CcfParams(rest_bias=False)), t, gyr, acc, mag).quat[-800:]
+    yaw = 2 * np.arctan2(q[:, 3], q[:, 0])
+    assert np.degrees(np.abs(np.angle(np.exp(1j * (yaw - w * t[-800:]))))).max() < 0.002
+
+
 # Half-step angles 0.0044 (the series) and 0.014 (sin/cos).
 @pytest.mark.parametrize('rate_rad_s', [2.5, 8.0])
 def test_gyro_integration_stays_unit_and_exact_over_100k_steps(rate_rad_s):
@@ -461,10 +566,10 @@ def test_magnetic_disturbance_is_flagged_ignored_and_cleared_when_the_field_retu
     np.testing.assert_array_equal(disturbed[after], disturbed_clean[after])
     np.testing.assert_array_equal(used[after], used_clean[after])
     assert used[after].mean() > 0.99
-    # Meanwhile the heading went on with the gyro alone: within 1° of the undisturbed run (measured 0.80°).
+    # Meanwhile the heading went on with the gyro alone: close to the undisturbed run.
     from ccf_ros.core.metrics import error_angles
 
-    assert np.degrees(np.abs(error_angles(q, q_clean)[1][bad])).max() < 1.0
+    assert np.degrees(np.abs(error_angles(q, q_clean)[1][bad])).max() < 0.67  # measured 0.557
 
 
 def test_a_new_field_steady_for_mag_reaccept_s_becomes_the_reference():
@@ -494,7 +599,7 @@ def test_the_reference_field_is_a_mean_not_the_first_sample():
     assert used0[t >= 10.0].mean() < 0.99  # the lottery mag_ref_learn_s removes (measured 0.958)
 
 
-@pytest.mark.parametrize(('seed', 'bound_deg'), [(22, 2.2), (23, 2.3)])
+@pytest.mark.parametrize(('seed', 'bound_deg'), [(22, 0.64), (23, 1.05)])
 def test_started_while_moving_the_heading_converges(seed, bound_deg):
     """The filter started 30 s into strong hand-held motion (0.3 m translations: the first accelerometer samples
     tilt the start by tens of degrees): the reference field is learnt while the tilt converges, the bias integral
@@ -507,7 +612,7 @@ def test_started_while_moving_the_heading_converges(seed, bound_deg):
     r = run_batch(QuaternionCcf(), d.t_s[k0:], d.gyr[k0:], d.acc[k0:], d.mag[k0:])
     late = d.t_s[k0:] - d.t_s[k0] > 30.0
     head = np.degrees(np.abs(error_angles(r.quat, d.q_true[k0:])[1]))[late]
-    assert np.sqrt(np.mean(head**2)) < bound_deg  # measured 1.82 (seed 22), 1.90 (seed 23)
+    assert np.sqrt(np.mean(head**2)) < bound_deg  # measured 0.53 (seed 22), 0.88 (seed 23)
 
 
 def test_a_new_field_with_outliers_still_becomes_the_reference():

@@ -77,6 +77,21 @@ def test_replay_answers_every_sample_as_the_batch_path_does(sim_bag, tmp_path, c
     assert s.total_rmse_deg < 0.76  # clean simulated hand-held motion: measured 0.63 deg
 
 
+def test_simulate_a_vehicle_and_replay_it(tmp_path, capsys):
+    """`ccf simulate --motion vehicle`: linear accelerations that last seconds (drive off, brake, turn) tilt the
+    accelerometer for most of the run; the replay follows within the figures the README states for it."""
+    bag = tmp_path / 'vehicle'
+    assert ccf(['simulate', '-o', str(bag), '--motion', 'vehicle', '--duration', '120', '--rate', '100', '--seed', '3']) == 0
+    assert 'vehicle motion' in capsys.readouterr().out
+    imu = read_imu_arrays(bag)
+    assert np.mean(np.hypot(imu.acc[:, 0], imu.acc[:, 1]) > 0.3) > 0.5  # measured 0.59 of the samples
+    out = tmp_path / 'out'
+    assert ccf(['replay', str(bag), '-o', str(out)]) == 0
+    s = evaluate(load_aligned(out, '/ground_truth/pose', reference_bag=bag, mask_topic='/ground_truth/moving'))
+    assert s.n_missing == 0 and s.n_scored > 11000
+    assert s.total_rmse_deg < 3.4 and s.inclination_rmse_deg < 3.0  # measured 2.81 and 2.46 deg
+
+
 def test_replay_is_accurate_on_a_real_trial(short_trial, tmp_path):
     out = tmp_path / 'out'
     assert ccf(['replay', str(short_trial), '-o', str(out)]) == 0
@@ -116,7 +131,7 @@ def test_replay_survives_injected_faults(faulty_sim, tmp_path, capsys):
     after = t_ref > t_ref[0] + 76.0  # ~10 s after the re-initialisation
     s = summarize(align(t_est[advanced], q_est[advanced], t_ref[after], q_ref[after]), q_ref[after])
     assert s.n_missing == 0
-    assert s.total_rmse_deg < 2.6  # measured 2.14 deg
+    assert s.total_rmse_deg < 3.1  # measured 2.58 deg
 
 
 

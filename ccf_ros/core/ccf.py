@@ -17,13 +17,20 @@ accelerometer/magnetometer attitude — made to work in 3-D, at any sample rate,
    two low-passes it passed (Butterworth and NCF, tilt) or the NCF's alone (heading). The integral is a Kalman
    filter on that observation (state: the bias, rad/s, body; covariance ``P``, 3x3): its measurement model passes the
    body->world rotation through the same low-passes, so a body that turns while the error builds up is modelled,
-   not mistaken for bias. The tilt observations' noise density is ``(bias_walk_rad_s_sqrt_s tau_bias_s)²``, so in
-   steady motion the bias follows with time constant ``tau_bias_s``; the heading's is that over cos²(dip) (a
-   magnetometer's heading carries the tilt error times tan(dip)); both grow with the rotation rate
-   (``bias_rotation_rad_s``: scale-factor and misalignment errors make a rotation look like bias). ``P`` starts at
+   not mistaken for bias. The tilt observations' noise density is ``W = (bias_walk_rad_s_sqrt_s tau_bias_s)²``
+   ((rad/s)² s), so in steady motion the bias follows with time constant ``tau_bias_s`` (the Kalman steady state,
+   ``P = walk sqrt(W)``); the heading's is ``W / cos²(dip)`` (a magnetometer's heading carries the tilt error times
+   tan(dip)); both grow as ``1 + (|w| / bias_rotation_rad_s)²`` with the rotation rate ``|w|`` (scale-factor and
+   misalignment errors make a rotation look like bias), so ``tau_bias_s`` holds while the body turns slower than
+   that and the estimate is slower while it turns faster (~15 s at 35°/s). An observation further than 3 standard
+   deviations from what the bias uncertainty and the references' own errors (``incl_sigma_rad``,
+   ``heading_sigma_rad``, over ``tau_ncf_s``) explain is not used once the bias is roughly known (its variance
+   below a quarter of the initial): a linear acceleration that lasts seconds (a vehicle drives off, brakes, turns)
+   or a shock is no information about the bias. ``P`` starts at
    ``bias_sigma_init_rad_s²``, relaxes to ``bias_sigma_rest_rad_s²`` at rest (where the bias is pulled to the
    low-passed gyro, which is far more informative) and grows with ``bias_walk_rad_s_sqrt_s``, so a bias learnt at
-   rest is refined slowly at first and more readily as it ages. The bias update runs every ~40 ms of samples.
+   rest is refined slowly at first and more readily as it ages. The bias update runs once the samples since the
+   last span 40 ms.
 2. **LCF (output stage).** The published attitude ``q`` integrates the bias-corrected rate and is blended towards
    ``g_lp`` (inclination, time constant ``tau_acc_s``) and towards the magnetometer heading (rotation about world
    up only, ``tau_mag_s``), so a magnetic disturbance never tilts the estimate. A field whose norm or dip departs from
@@ -41,14 +48,17 @@ and from the measured rate ``w`` to the output ``x``::
 
 Without the NCF (``G = 0``) ``H_a = K_a B / (s + K_a)``: linear accelerations are attenuated at 18 dB/octave. The
 bias path is an open-loop filter of the rate the accelerometer does not confirm (``w - s x_a``): it cannot
-oscillate, whatever its gain. The per-sample gains ``1 - exp(-dt/tau)`` and the exactly discretised low-pass make the
-defaults behave the same at 40 Hz and at 1 kHz.
+oscillate, whatever its gain. With ``G`` the response peaks at +2.9 dB near 0.03 Hz: a tilt that lasts tens of
+seconds reads partly as bias, which the gate above bounds. The per-sample gains ``1 - exp(-dt/tau)`` and the
+exactly discretised low-pass make the defaults behave the same at 40 Hz and at 1 kHz.
 
 Sample timing. The gyro step uses the rectangle rule: a sample's rate is taken as the mean over the interval before
 it (what a MEMS gyro's decimation filter outputs), which carries the frame exactly to the step's end. The
-accelerometer sample is the same kind of mean, so it describes gravity in the frame of mid-interval: it is rotated
-forward by half the gyro step before it is filtered in (first order; it matters at low rates and fast rotation). With
-instantaneous (point) samples the estimate is therefore the frame half a step after the stamp.
+accelerometer and magnetometer samples are the same kind of mean, so they describe gravity and the field in the
+frame of mid-interval: the accelerometer sample is rotated forward by half the gyro step before it is filtered in,
+the magnetometer sample back by half a step to the attitude it is compared with, the step's start (first order; it
+matters at low rates and fast rotation). With instantaneous (point) samples the estimate is therefore the frame half
+a step after the stamp.
 
 Reported covariance: continuous-time, so it does not depend on the sample rate. Inclination and heading variances
 are a floor (``incl_sigma_rad``, ``heading_sigma_rad``) plus a drift variance that grows while that correction is
@@ -78,10 +88,17 @@ _HEAD_ERR_MAX = 5.0 * _DEG
 _HEAD_ERR_MAX2 = _HEAD_ERR_MAX * _HEAD_ERR_MAX
 #: The new-field timer loses this many seconds per second of samples that disagree with the candidate.
 _LEAK = 3.0
-#: The NCF's bias update runs once per this many seconds of samples (every sample below 25 Hz): the tilt observations
-#: are low-passed over seconds and the heading ones averaged over the block, so 25 updates a second lose nothing
-#: (BROAD's mean error moves by 0.005° between 50 and 25 Hz) and save most of the matrix arithmetic.
+#: The NCF's bias update runs once the samples since the last one span this long, s (every sample at 25 Hz and
+#: below): the tilt observations are low-passed over seconds and the heading ones averaged over the block, so 25
+#: updates a second lose nothing (BROAD's mean error moves by 0.005° between 50 and 25 Hz) and save most of the
+#: matrix arithmetic.
 BIAS_UPDATE_PERIOD_S = 0.04
+#: Due at this span (s), so that rounding in the stamps' differences does not make a block of exactly 0.04 s wait
+#: for another sample.
+_BLOCK_DUE_S = BIAS_UPDATE_PERIOD_S * (1.0 - 1e-6)
+#: The NCF's bias observations are used only within this many standard deviations of what the bias uncertainty and
+#: the attitude references' own errors (incl_sigma_rad, heading_sigma_rad, over tau_ncf_s) explain (squared).
+_GATE2 = 3.0**2
 #: cos²(dip) is floored at this when the heading observations' noise is scaled by 1/cos²(dip) (near a magnetic pole
 #: the horizontal field, and so heading, is lost in the tilt error).
 _COS2_DIP_MIN = 0.05
@@ -98,12 +115,12 @@ class CcfParams(CommonParams):
             gyro's bias).
         tau_acc_lp_s: group delay of the second-order (Butterworth) gravity low-pass in the gyro-carried (almost
             inertial) frame, s; cut-off frequency ``sqrt(2) / (2 pi tau_acc_lp_s)``. Together with ``tau_acc_s`` it
-            attenuates linear accelerations at 18 dB/octave; a gyro bias ``b`` leaves a tilt lag of about
-            ``b (tau_acc_lp_s + tau_acc_s)`` until it is learnt. Default 2.5.
+            attenuates linear accelerations at 18 dB/octave; a gyro bias ``b`` (rad/s) leaves a tilt offset of about
+            ``b (tau_acc_lp_s + tau_acc_s)`` rad until it is learnt. Default 2.5.
         tau_ncf_s: NCF: time constant of its proportional correction, s. Default 3.
         tau_bias_s: NCF: time constant with which the bias estimate follows the observed drift in continuous
-            motion (the Kalman steady state), s: it sets the tilt observations' noise density to
-            ``(bias_walk_rad_s_sqrt_s tau_bias_s)²``. Default 5.
+            motion slower than ``bias_rotation_rad_s`` (the Kalman steady state), s: it sets the tilt observations'
+            noise density to ``(bias_walk_rad_s_sqrt_s tau_bias_s)²``. Default 5.
         bias_rotation_rad_s: rotation rate at which the NCF's bias observations count half, rad/s (their noise
             grows as ``1 + (|w| / this)²``): a gyro's scale-factor and misalignment errors, ~0.3 %, make a fast
             rotation look like bias. Default 12°/s.
@@ -201,9 +218,9 @@ def butterworth_step(tau_s: float, dt: float) -> tuple[float, float, float, floa
 
 @dataclass(frozen=True, slots=True)
 class _Coefficients:
-    """Per-sample constants derived from :class:`CcfParams` for one sample period ``dt`` (s)."""
+    """Per-sample constants derived from :class:`CcfParams` for sample periods in ``[dt_lo, dt_hi]`` (s), computed at
+    the bin's middle (see :meth:`of`)."""
 
-    dt: float
     dt_lo: float
     dt_hi: float
     k_acc: float
@@ -226,41 +243,20 @@ class _Coefficients:
     keep_head: float
     sigma_init: float
     var_arw: float
-    # The NCF's bias update, once every blk_n samples (blk_dt s).
-    blk_n: int
-    blk_dt: float
-    learn: bool
-    m_a: float
-    m12: float
-    m21: float
-    m22: float
-    k_ncf_blk: float
-    inv_tau_ncf: float
-    r_tilt: float
-    inv_rot2: float
-    walk_blk: float
-    p_init: float
-    p_rest: float
-    keep_rest_blk: float
 
     @classmethod
-    def of(cls, p: CcfParams, dt: float) -> _Coefficients:
+    def of(cls, p: CcfParams, key: int) -> _Coefficients:
+        """The coefficients of bin ``key`` of sample periods, ``exp((key ± 0.5) / 1000)`` s (:func:`_bin`)."""
+        dt_lo, dt, dt_hi = (math.exp((key + h) / 1000.0) for h in (-0.5, 0.0, 0.5))
         k_rest = -math.expm1(-dt / p.rest_tau_s)
         # Rest thresholds apply to (sample - new low-pass) = (1 - k_rest) * (sample - old low-pass).
         rest_keep2 = (1.0 - k_rest) ** 2 if k_rest < 1.0 else 1e-300
         lp = butterworth_step(p.tau_acc_lp_s, dt)
-        n = max(1, int(BIAS_UPDATE_PERIOD_S / dt)) if dt > 0.0 else 1
-        blk_dt = n * dt
-        m = butterworth_step(p.tau_acc_lp_s, blk_dt)
         # The start-up hands the blends over to their time constants; without a magnetometer heading has none.
         taus = (p.tau_acc_s, p.tau_acc_lp_s, p.tau_mag_s) if p.use_mag else (p.tau_acc_s, p.tau_acc_lp_s)
-        walk = p.bias_walk_rad_s_sqrt_s
         return cls(
-            dt=dt,
-            # Float stamps near 1.7e9 s resolve 0.24 µs, so dt wobbles by ~1e-4 relative: gains are reused while dt
-            # stays within 0.1 % (a 0.1 % change of a blend gain is immaterial; integration uses the exact dt).
-            dt_lo=dt * (1.0 - 1e-3),
-            dt_hi=dt * (1.0 + 1e-3),
+            dt_lo=dt_lo,
+            dt_hi=dt_hi,
             k_acc=-math.expm1(-dt / p.tau_acc_s),
             k_mag=-math.expm1(-dt / p.tau_mag_s),
             # The low-pass's start-up running mean hands over at the rate of a first-order filter of its delay.
@@ -283,23 +279,70 @@ class _Coefficients:
             keep_head=math.exp(-2.0 * dt / p.tau_mag_s),
             sigma_init=p.bias_sigma_init_rad_s,
             var_arw=p.gyro_arw_rad_sqrt_s**2 * dt,
-            blk_n=n,
-            blk_dt=blk_dt,
-            learn=p.motion_bias,
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class _BlockCoefficients:
+    """Constants of one NCF bias update spanning ``t`` s of samples (see :meth:`QuaternionCcf._ncf_update`)."""
+
+    t_lo: float
+    t_hi: float
+    m_a: float
+    m12: float
+    m21: float
+    m22: float
+    k_ncf: float
+    inv_tau_ncf: float
+    r_tilt: float
+    inv_rot2: float
+    walk: float
+    p_init: float
+    p_rest: float
+    keep_rest: float
+    gate_tilt: float
+    gate_head: float
+    gate_p: float
+
+    @classmethod
+    def of(cls, p: CcfParams, t: float) -> _BlockCoefficients:
+        m = butterworth_step(p.tau_acc_lp_s, t)
+        w = p.bias_walk_rad_s_sqrt_s
+        return cls(
+            # Reused while the block's span stays within 0.1 % (jittered stamps), like the per-sample gains.
+            t_lo=t * (1.0 - 1e-3),
+            t_hi=t * (1.0 + 1e-3),
             m_a=1.0 - m[0],
             m12=m[1],
             m21=m[2],
             m22=m[3],
-            k_ncf_blk=-math.expm1(-blk_dt / p.tau_ncf_s),
+            k_ncf=-math.expm1(-t / p.tau_ncf_s),
             inv_tau_ncf=1.0 / p.tau_ncf_s,
-            # Variance of one block's tilt observation: the noise density (walk x tau_bias)² over the block.
-            r_tilt=(walk * p.tau_bias_s) ** 2 / blk_dt if blk_dt > 0.0 else math.inf,
+            # Variance of one block's tilt observation, (rad/s)²: the noise density (walk tau_bias)² over the block.
+            r_tilt=(w * p.tau_bias_s) ** 2 / t,
             inv_rot2=1.0 / p.bias_rotation_rad_s**2,
-            walk_blk=walk * walk * blk_dt,
+            walk=w * w * t,
             p_init=p.bias_sigma_init_rad_s**2,
             p_rest=p.bias_sigma_rest_rad_s**2,
-            keep_rest_blk=math.exp(-blk_dt / p.rest_tau_s),
+            keep_rest=math.exp(-t / p.rest_tau_s),
+            # The gate's floors, (rad/s)²: the rate at which the attitude references' own errors would show as drift
+            # through the NCF.
+            gate_tilt=(p.incl_sigma_rad / p.tau_ncf_s) ** 2,
+            gate_head=(p.heading_sigma_rad / p.tau_ncf_s) ** 2,
+            # The gate holds once the bias's variance along the observation is below a quarter of the initial one.
+            gate_p=0.25 * p.bias_sigma_init_rad_s**2,
         )
+
+
+def _bin(dt: float) -> int:
+    """The 0.1 % bin of sample periods (s, > 0) that holds ``dt``.
+
+    Stamps jitter: float stamps near 1.7e9 s resolve 0.24 µs (dt wobbles by ~1e-4 relative), a driver that stamps on
+    arrival by far more. Gains are taken at the bin's middle (a 0.05 % change of a blend gain is immaterial; the
+    integration uses the exact dt), so a stream costs as many computations of them as it visits bins, not one per
+    sample.
+    """
+    return round(math.log(dt) * 1000.0)
 
 
 def _drift(var: float, bias_step: float, var_arw: float) -> float:
@@ -332,7 +375,7 @@ class QuaternionCcf(OrientationFilter):
 
     name = 'ccf'
     __slots__ = (
-        '_coef', '_gyro_lp', '_heading_known', '_mag_bounds', '_mag_candidate', '_mag_have_ref',
+        '_bcoef', '_coef', '_coef_cache', '_gyro_lp', '_heading_known', '_mag_bounds', '_mag_candidate', '_mag_have_ref',
         '_mag_learn_n', '_mag_learn_s', '_mag_new_s', '_mag_ref', '_mag_rejected_t', '_model', '_n_init', '_p_bias',
         '_rest_s', '_u_bias', '_var_head', '_var_incl', '_x',
     )
@@ -344,10 +387,12 @@ class QuaternionCcf(OrientationFilter):
     def _reset_state(self) -> None:
         # The per-sample state in one tuple (one load and one store per sample): the gyro bias b (rad/s, body), the
         # filtered gravity g_lp (m/s², body), the NCF's offset dn (rad, world) and g_lp's rate (m/s³, body), 3
-        # values each; then the NCF heading errors summed over the current block (rad) and how many, and the
-        # samples left until the next NCF bias update.
-        self._x = (0.0, 0.0, 0.0, 0.0, 0.0, GRAVITY_M_S2, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0, 0)
-        self._coef = _Coefficients.of(self.params, 0.0)
+        # values each; then, for the NCF bias update's current block, the NCF heading errors summed (rad) and how
+        # many, the time it spans (s) and its samples.
+        self._x = (0.0, 0.0, 0.0, 0.0, 0.0, GRAVITY_M_S2, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0, 0.0, 0)
+        self._coef_cache: dict[int, _Coefficients] = {}
+        self._coef = self._coefficients(0.01)
+        self._bcoef = _BlockCoefficients.of(self.params, BIAS_UPDATE_PERIOD_S)
         self._gyro_lp = (0.0, 0.0, 0.0)
         self._rest_s = 0.0
         self._n_init = 0
@@ -409,8 +454,20 @@ class QuaternionCcf(OrientationFilter):
             self._mag_bounds = self._bounds(norm, sin_dip)
         self._mag_candidate = (0.0, 0.0, 0.0)
 
+    def _coefficients(self, dt: float) -> _Coefficients:
+        """The per-sample coefficients for a sample period of ``dt`` s (> 0), from the cache of recent bins."""
+        key = _bin(dt)
+        c = self._coef_cache.get(key)
+        if c is None:
+            if len(self._coef_cache) >= 256:  # jitter or rate changes without end: keep the cache small
+                self._coef_cache.clear()
+            c = self._coef_cache[key] = _Coefficients.of(self.params, key)
+        return c
+
     def _params_changed(self) -> None:
-        self._coef = _Coefficients.of(self.params, 0.0)
+        self._coef_cache = {}
+        self._coef = self._coefficients(self._coef.dt_lo)
+        self._bcoef = _BlockCoefficients.of(self.params, BIAS_UPDATE_PERIOD_S)
         if not self.params.rest_bias:
             self.at_rest = False
             self._rest_s = 0.0
@@ -419,8 +476,6 @@ class QuaternionCcf(OrientationFilter):
             self.at_rest = False
         if self._mag_have_ref and self._mag_learn_s <= 0.0:
             self._mag_bounds = self._bounds(*self._mag_ref)
-        # A new low-pass delay changes the observation model: seed it afresh.
-        self._model = None
 
     def _init(self, ax: float, ay: float, az: float, mx: float, my: float, mz: float, mag_ok: bool) -> None:
         q: Quat | None = quat_from_acc_mag_scalar(ax, ay, az, mx, my, mz, mag_ok)
@@ -443,7 +498,7 @@ class QuaternionCcf(OrientationFilter):
                 self._heading_known = False
         self._q = q
         bias = self._x[:3]
-        self._x = (*bias, ax, ay, az, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0, 0)
+        self._x = (*bias, ax, ay, az, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0, 0.0, 0)
         self._gyro_lp = bias
         self._rest_s = 0.0
         self.at_rest = False
@@ -474,9 +529,9 @@ class QuaternionCcf(OrientationFilter):
     ) -> None:
         c = self._coef
         if not c.dt_lo <= dt <= c.dt_hi:
-            c = self._coef = _Coefficients.of(self.params, dt)
+            c = self._coef = self._coefficients(dt)
         qw, qx, qy, qz = self._q
-        bx, by, bz, fx, fy, fz, dnx, dny, dnz, fdx, fdy, fdz, h_sum, h_n, blk = self._x
+        bx, by, bz, fx, fy, fz, dnx, dny, dnz, fdx, fdy, fdz, h_sum, h_n, blk_t, blk_n = self._x
         # Rows of the body->world rotation matrix: world east (r0), north (r1) and up (v) in body coordinates.
         # (Twice the products: x2 = 2 qx etc. saves the factor 2 of every matrix element.)
         x2, y2, z2 = qx + qx, qy + qy, qz + qz
@@ -515,6 +570,12 @@ class QuaternionCcf(OrientationFilter):
         nz = ez - dnx * r0z - dny * r1z
         hn = kd = 0.0
         if mag_n2:
+            # The sample is a mean over the step, like the accelerometer's: the field in the frame of mid-interval.
+            # The attitude here is the step's start, so carry it back half the gyro step, m' = m + p x m.
+            px = (gx - bx) * 0.5 * dt
+            py = (gy - by) * 0.5 * dt
+            pz = (gz - bz) * 0.5 * dt
+            mx, my, mz = mx + (py * mz - pz * my), my + (pz * mx - px * mz), mz + (px * my - py * mx)
             norm = sqrt(mag_n2)
             sin_dip = (vx * mx + vy * my + vz * mz) / norm
             lo2, hi2, lo_dip, hi_dip = self._mag_bounds
@@ -557,26 +618,28 @@ class QuaternionCcf(OrientationFilter):
                 self._var_incl = vi * c.keep_incl if vi > 1e-14 else 0.0
         else:
             self._var_incl = _drift(self._var_incl, c.sigma_init * sqrt(self._u_bias) * dt, c.var_arw)
-        # NCF integral: a Kalman update of the bias once per block of samples (see _ncf_update).
-        blk -= 1
-        if blk <= 0:
+        # NCF integral: a Kalman update of the bias once the block of samples spans BIAS_UPDATE_PERIOD_S.
+        blk_t += dt
+        blk_n += 1
+        if blk_t >= _BLOCK_DUE_S:
             bx, by, bz = self._ncf_update(
-                c, bx, by, bz, r0x, r0y, r0z, r1x, r1y, r1z, vx, vy, vz, nx, ny, nz, h_sum, h_n,
+                blk_t, blk_n, bx, by, bz, r0x, r0y, r0z, r1x, r1y, r1z, vx, vy, vz, nx, ny, nz, h_sum, h_n,
                 gx * gx + gy * gy + gz * gz,
                 # Not during the start-up (ni): the errors then are the initial attitude's, not the bias's; not at
                 # rest, where the low-passed gyro below is far more informative; not without an accelerometer.
-                c.learn and not (ni or self.at_rest) and acc_n2 != 0.0,
+                not (ni or self.at_rest) and acc_n2 != 0.0,
             )
-            blk = c.blk_n
-            h_sum = 0.0
-            h_n = 0
-        if c.rest_bias:
+            blk_t = h_sum = 0.0
+            blk_n = h_n = 0
+        if c.rest_bias and acc_n2:
             # Rest: the accelerometer within rest_acc_m_s2 of the filtered gravity (tested first: it fails first
             # while moving, and then nothing else is needed), and the gyro within rest_gyro_rad_s of its low-pass.
+            # A sample without a usable accelerometer neither extends nor ends a rest (one corrupted message in a
+            # hundred would otherwise never let a rest last rest_min_s).
             dax = ax - fx
             day = ay - fy
             daz = az - fz
-            if dax * dax + day * day + daz * daz < c.rest_acc2 and acc_n2:
+            if dax * dax + day * day + daz * daz < c.rest_acc2:
                 k = c.k_rest
                 if self._rest_s:
                     glx, gly, glz = self._gyro_lp
@@ -706,12 +769,13 @@ class QuaternionCcf(OrientationFilter):
             dnx + r0x * ux + r0y * uy + r0z * uz,
             dny + r1x * ux + r1y * uy + r1z * uz,
             dnz + k * hn - kd,
-            fdx, fdy, fdz, h_sum, h_n, blk,
+            fdx, fdy, fdz, h_sum, h_n, blk_t, blk_n,
         )
 
     def _ncf_update(  # the arguments are the step's locals: one call per block, no attribute traffic
         self,
-        c: _Coefficients,
+        t: float,
+        n: int,
         bx: float,
         by: float,
         bz: float,
@@ -732,7 +796,8 @@ class QuaternionCcf(OrientationFilter):
         w2: float,
         learn: bool,
     ) -> tuple[float, float, float]:
-        """The NCF's bias estimate, once per ``c.blk_n`` samples: returns the new bias (rad/s, body).
+        """The NCF's bias estimate, once per block of ``n`` samples spanning ``t`` s: returns the new bias (rad/s,
+        body).
 
         Observations: the NCF's tilt error (rad, body; ``nx, ny, nz``) seen in the world frame (east, north) and,
         with a usable magnetometer, its heading error (the mean of the block's ``h_n`` samples that qualified,
@@ -743,6 +808,9 @@ class QuaternionCcf(OrientationFilter):
         on ``R b`` (the estimate's own history), so the innovation is ``y + M(R b) - M(R) b``, and ``M(R)`` is the
         measurement matrix of a Kalman update, one scalar row at a time. ``w2``: the squared gyro rate, rad²/s².
         """
+        c = self._bcoef
+        if not c.t_lo <= t <= c.t_hi:
+            c = self._bcoef = _BlockCoefficients.of(self.params, t)
         rb0 = r0x * bx + r0y * by + r0z * bz
         rb1 = r1x * bx + r1y * by + r1z * bz
         rbv = vx * bx + vy * by + vz * bz
@@ -756,7 +824,7 @@ class QuaternionCcf(OrientationFilter):
             # Unrolled (this runs at 25 Hz, and a loop costs half again as much): Butterworth, then NCF low-pass,
             # of the tilt quantities u; NCF low-pass of the heading ones.
             (v0, v1, v2, v3, v4, v5, v6, v7), (d0, d1, d2, d3, d4, d5, d6, d7), mt, mh = model
-            a, m12, m21, m22, k = c.m_a, c.m12, c.m21, c.m22, c.k_ncf_blk
+            a, m12, m21, m22, k = c.m_a, c.m12, c.m21, c.m22, c.k_ncf
             e0, e1, e2, e3 = v0 - r0x, v1 - r0y, v2 - r0z, v3 - r1x
             e4, e5, e6, e7 = v4 - r1y, v5 - r1z, v6 - rb0, v7 - rb1
             v0 += m12 * d0 - a * e0
@@ -778,28 +846,32 @@ class QuaternionCcf(OrientationFilter):
                 (h0 + k * (vx - h0), h1 + k * (vy - h1), h2 + k * (vz - h2), h3 + k * (rbv - h3)),
             )
         p00, p01, p02, p11, p12, p22 = self._p_bias
-        if learn:
+        if learn and self.params.motion_bias:
             # Observation noise: (walk tau_bias)² per block, growing with the rotation rate; heading's over cos²(dip).
             r = c.r_tilt * (1.0 + w2 * c.inv_rot2)
             k = -c.inv_tau_ncf
             y0 = k * (r0x * nx + r0y * ny + r0z * nz)
             y1 = k * (r1x * nx + r1y * ny + r1z * nz)
             mt, mh = model[2], model[3]
-            # (the row's M(R), its M(R b), the observation, its variance)
-            rows = [(mt[0], mt[1], mt[2], mt[6], y0, r), (mt[3], mt[4], mt[5], mt[7], y1, r)]
+            # (the row's M(R), its M(R b), the observation, its variance, the gate's noise floor)
+            rows = [(mt[0], mt[1], mt[2], mt[6], y0, r, c.gate_tilt), (mt[3], mt[4], mt[5], mt[7], y1, r, c.gate_tilt)]
             if h_n:
                 # The block's mean heading error; its variance grows as fewer of the block's samples qualified.
                 sd = self._mag_ref[1]
-                rows.append((*mh, k * h_sum / h_n, r * c.blk_n / (h_n * max(1.0 - sd * sd, _COS2_DIP_MIN))))
-            m = c.bias_max
-            for h0, h1, h2, hb, y, ri in rows:
+                rows.append((*mh, k * h_sum / h_n, r * n / (h_n * max(1.0 - sd * sd, _COS2_DIP_MIN)), c.gate_head))
+            for h0, h1, h2, hb, y, ri, floor2 in rows:
                 nu = y + hb - (h0 * bx + h1 * by + h2 * bz)
-                # One wild observation (a start, a shock) moves the estimate by at most the clamp.
-                nu = m if nu > m else (-m if nu < -m else nu)
                 ph0 = p00 * h0 + p01 * h1 + p02 * h2
                 ph1 = p01 * h0 + p11 * h1 + p12 * h2
                 ph2 = p02 * h0 + p12 * h1 + p22 * h2
-                si = 1.0 / (h0 * ph0 + h1 * ph1 + h2 * ph2 + ri)
+                hph = h0 * ph0 + h1 * ph1 + h2 * ph2
+                if nu * nu > _GATE2 * (hph + floor2) and hph < c.gate_p:
+                    # More drift than the bias's uncertainty and the accelerometer's (magnetometer's) own error
+                    # explain: a linear acceleration that lasts (a vehicle drives off, brakes, turns), a shock. It is
+                    # no information about the bias, once the bias is roughly known (before, a bias beyond the
+                    # initial uncertainty, a cheap gyro's 2°/s, must still be learnt).
+                    continue
+                si = 1.0 / (hph + ri)
                 k0, k1, k2 = ph0 * si, ph1 * si, ph2 * si
                 bx += k0 * nu
                 by += k1 * nu
@@ -812,7 +884,7 @@ class QuaternionCcf(OrientationFilter):
                 p22 -= k2 * ph2
         if self.at_rest:
             # At rest the covariance relaxes to bias_sigma_rest² (the low-passed gyro's own uncertainty).
-            kr = c.keep_rest_blk
+            kr = c.keep_rest
             pr = (1.0 - kr) * c.p_rest
             p00, p11, p22 = p00 * kr + pr, p11 * kr + pr, p22 * kr + pr
             p01 *= kr
@@ -820,13 +892,18 @@ class QuaternionCcf(OrientationFilter):
             p12 *= kr
         else:
             # The bias random walk: knowledge ages (up to knowing nothing).
-            pi, w = c.p_init, c.walk_blk
+            pi, w = c.p_init, c.walk
             if p00 < pi:
                 p00 += w
             if p11 < pi:
                 p11 += w
             if p22 < pi:
                 p22 += w
+        # A variance cannot be negative; rounding after an update from far more information than the prior (an
+        # extreme bias_sigma_init_rad_s) could leave it so.
+        p00 = p00 if p00 > 0.0 else 0.0
+        p11 = p11 if p11 > 0.0 else 0.0
+        p22 = p22 if p22 > 0.0 else 0.0
         self._p_bias = (p00, p01, p02, p11, p12, p22)
         self._u_bias = (p00 + p11 + p22) / (3.0 * c.p_init)
         return bx, by, bz
@@ -898,11 +975,6 @@ class QuaternionCcf(OrientationFilter):
         ``bias_sigma_init_rad_s`` while nothing is known, ``bias_sigma_rest_rad_s`` after a rest, shrinking as the
         NCF learns and growing back with ``bias_walk_rad_s_sqrt_s`` (it scales the reported drift variance)."""
         return self.params.bias_sigma_init_rad_s * sqrt(self._u_bias)
-
-    @property
-    def gyro_bias_covariance(self) -> tuple[float, float, float, float, float, float]:
-        """Covariance of :attr:`gyro_bias`, rad²/s², body frame, as ``(xx, xy, xz, yy, yz, zz)``."""
-        return self._p_bias
 
     @property
     def ncf_quaternion(self) -> Quat:

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from ..core.quaternion import quat_conj, quat_from_rotvec, quat_mul, quat_rotate, to_xyzw
+from ..core.quaternion import euler_to_quat, quat_conj, quat_from_rotvec, quat_mul, quat_rotate, to_xyzw
 from ..errors import ParameterError
 from .bagio import open_writer, refuse_existing, staged, typestore
 
@@ -111,6 +111,85 @@ def generate(
         bias = bias + bias_drift_rad_s * (np.sin(2 * np.pi * tr[:, None] / bias_drift_period_s + phase) - np.sin(phase))
     gyr = omega + bias + gyro_noise_rad_s * rng.standard_normal((n, 3))
     return SimData(t_s=t0_s + tr, q_true=q, gyr=gyr, acc=acc, mag=mag, bias=bias, moving=tr >= rest)
+
+
+def generate_vehicle(
+    duration_s: float = 300.0,
+    rate_hz: float = 100.0,
+    seed: int = 0,
+    *,
+    rest_s: float = 5.0,
+    gyro_noise_rad_s: float = 0.005,
+    acc_noise_m_s2: float = 0.1,
+    mag_noise_t: float = 0.5e-6,
+    bias_init_rad_s: float = np.radians(0.3),
+    bias_walk_rad_s_sqrt_s: float = 2e-4,
+    t0_s: float = 1.7e9,
+    accel_m_s2: tuple[float, float] = (0.3, 1.5),
+    pitch_per_m_s2_rad: float = 0.01,
+) -> SimData:
+    """A ground vehicle: drives off at ``accel_m_s2`` (range, m/s²) for 2-6 s, cruises, turns at 0.15-0.5 rad/s
+    (centripetal acceleration speed x yaw rate), cruises, brakes as hard as it accelerated and stops for 3-8 s, over
+    and over, on a road that climbs and falls by up to ±3°; the body pitches and rolls on its suspension by
+    ``pitch_per_m_s2_rad`` per m/s² of longitudinal and lateral acceleration. Unlike hand-held motion, its linear
+    accelerations last seconds in one direction: they pass any low-pass that gravity passes.
+
+    Deterministic for a seed; the same noise and bias model as :func:`generate`, ``moving`` after ``rest_s``.
+    """
+    if not (0 < duration_s < math.inf and 0 < rate_hz < math.inf):
+        raise ParameterError(f'duration and rate must be finite and > 0, got {duration_s!r} s, {rate_hz!r} Hz')
+    if not (isinstance(seed, (int, np.integer)) and seed >= 0):
+        raise ParameterError(f'seed must be an integer >= 0, got {seed!r}')
+    n = int(round(duration_s * rate_hz))
+    if n < 2:
+        raise ParameterError(f'{duration_s:g} s at {rate_hz:g} Hz is {n} sample(s): ask for at least 2')
+    rng = np.random.default_rng(seed)
+    dt = 1.0 / rate_hz
+    tr = np.arange(n) * dt
+    along = np.zeros(n)  # longitudinal acceleration, m/s²
+    yaw_rate = np.zeros(n)  # rad/s
+    i = int(round(rest_s * rate_hz))
+    while i < n:
+        a = rng.uniform(*accel_m_s2)
+        t_acc, cruise = rng.uniform(2.0, 6.0), rng.uniform(5.0, 20.0)
+        turn, t_turn, stop = rng.choice([-1.0, 1.0]) * rng.uniform(0.15, 0.5), rng.uniform(2.0, 6.0), rng.uniform(3.0, 8.0)
+        for dur, a_seg, w in ((t_acc, a, 0.0), (cruise / 2, 0.0, 0.0), (t_turn, 0.0, turn), (cruise / 2, 0.0, 0.0),
+                              (t_acc, -a, 0.0), (stop, 0.0, 0.0)):
+            k = int(round(dur * rate_hz))
+            along[i:i + k] = a_seg
+            yaw_rate[i:i + k] = w
+            i += k
+    # Drivers and steering are smooth over ~0.3 s.
+    m = max(1, int(round(0.3 * rate_hz)))
+    kernel = np.ones(m) / m
+    along = np.convolve(along, kernel, 'same')
+    yaw_rate = np.convolve(yaw_rate, kernel, 'same')
+    speed = np.cumsum(along) * dt
+    lateral = speed * yaw_rate
+    # The road's slope (pitch) and camber (roll): slow sums of sinusoids in distance, up to ±3° and ±1.5°.
+    dist = np.cumsum(speed) * dt
+    slope = sum(np.radians(rng.uniform(0.5, 1.0)) * np.sin(2 * np.pi * dist / rng.uniform(50, 300) + rng.uniform(0, 6.3))
+                for _ in range(3))
+    camber = sum(np.radians(rng.uniform(0.2, 0.5)) * np.sin(2 * np.pi * dist / rng.uniform(50, 300) + rng.uniform(0, 6.3))
+                 for _ in range(3))
+    pitch = -slope - pitch_per_m_s2_rad * along
+    roll = camber + pitch_per_m_s2_rad * lateral
+    yaw = np.cumsum(yaw_rate) * dt + rng.uniform(-np.pi, np.pi)
+    q = euler_to_quat(roll, pitch, yaw)
+    # Body rates from the orientation's derivative (central differences); the first and last by one-sided ones.
+    dq = np.gradient(q, dt, axis=0)
+    omega = 2.0 * quat_mul(quat_conj(q), dq)[:, 1:]
+    # Specific force: the vehicle's acceleration in the world (along the heading, and centripetal), plus gravity.
+    c, s = np.cos(yaw), np.sin(yaw)
+    acc_world = np.stack((along * c - lateral * s, along * s + lateral * c, np.full(n, G)), axis=1)
+    q_inv = quat_conj(q)
+    acc = quat_rotate(q_inv, acc_world) + acc_noise_m_s2 * rng.standard_normal((n, 3))
+    mag = quat_rotate(q_inv, np.broadcast_to(MAG_WORLD, (n, 3))) + mag_noise_t * rng.standard_normal((n, 3))
+    bias = bias_init_rad_s * rng.standard_normal(3) + np.cumsum(
+        bias_walk_rad_s_sqrt_s / np.sqrt(rate_hz) * rng.standard_normal((n, 3)), axis=0
+    )
+    gyr = omega + bias + gyro_noise_rad_s * rng.standard_normal((n, 3))
+    return SimData(t_s=t0_s + tr, q_true=q, gyr=gyr, acc=acc, mag=mag, bias=bias, moving=tr >= rest_s)
 
 
 def write_bag(data: SimData, path: str | Path, *, overwrite: bool = False, storage: str = 'mcap') -> None:

@@ -86,25 +86,29 @@ def _slowest(*coefficients: float) -> float:
     return float(min(abs(r.real) for r in np.roots([1.0, *coefficients])))
 
 
-def cases(rate_hz: float) -> list[tuple[str, str, dict[str, Any], Any, float]]:
-    """Filters whose response is measured: (figure, label, settings, transfer function of f, slowest pole)."""
-    out: list[tuple[str, str, dict[str, Any], Any, float]] = []
+def cases(rate_hz: float) -> list[tuple[str, str, dict[str, Any], Any, float, float]]:
+    """Filters whose response is measured: (figure, label, settings, transfer function of f, slowest pole, amplitude
+    of the accelerometer angle, rad)."""
+    out: list[tuple[str, str, dict[str, Any], Any, float, float]] = []
     for a in (0.7, 0.98):
         out.append(('fig02_lcf', f'LCF alpha={a:g}', {'filter': 'lcf', 'lcf_alpha': a},
-                    lambda f, a=a: tf_lcf(f, a, rate_hz), (1.0 - a) * rate_hz / a))
+                    lambda f, a=a: tf_lcf(f, a, rate_hz), (1.0 - a) * rate_hz / a, 0.2))
     for kp, ki in ((25.0, 0.1), (1.0, 0.01), (0.1, 1.0)):
         out.append(('fig04_ncf', f'NCF Kp={kp:g} Ki={ki:g}', ncf_settings(EULER, kp, ki),
-                    lambda f, kp=kp, ki=ki: tf_ncf(f, kp, ki), _slowest(kp, ki)))
+                    lambda f, kp=kp, ki=ki: tf_ncf(f, kp, ki), _slowest(kp, ki), 0.2))
     alpha = PAPER_ALPHA
     for kp, ki in ((25.0, 0.1), (1.0, 0.01), (0.1, 1.0)):
         out.append(('fig08_ccf', f'CCF Kp={kp:g} Ki={ki:g} alpha={alpha:g}', euler_ccf_settings(kp, ki, alpha),
-                    lambda f, kp=kp, ki=ki: tf_ccf(f, kp, ki, alpha), _slowest(alpha * kp, alpha * ki)))
+                    lambda f, kp=kp, ki=ki: tf_ccf(f, kp, ki, alpha), _slowest(alpha * kp, alpha * ki), 0.2))
     p = CcfParams(use_mag=False, rest_bias=False)
     # Poles: the Butterworth pair's real part 1/tau_acc_lp_s, the NCF's and the LCF's, and the bias gain.
     slowest = min(1.0 / p.tau_acc_lp_s, 1.0 / p.tau_ncf_s, 1.0 / p.tau_acc_s, p.bias_gain_per_s)
     out.append(('fig08_ccf', 'ccf_ros cascade (default, from the accelerometer angle)',
                 {'filter': 'ccf', 'rest_bias': False},
-                lambda f: np.array([tilt_transfer(p, float(x))[0] for x in np.atleast_1d(f)]), slowest))
+                lambda f: np.array([tilt_transfer(p, float(x))[0] for x in np.atleast_1d(f)]), slowest,
+                # Small (0.3°): the NCF uses no observation beyond 3 sigma of what it expects, a nonlinearity that a
+                # large slow swing (0.2 rad at 0.02 Hz reads as 1.4°/s of drift) would meet.
+                0.005))
     return out
 
 
@@ -115,8 +119,8 @@ def bode_study(rate_hz: float = 286.0, n_freq: int = 7) -> dict[str, Any]:
     f_theory = np.geomspace(0.005, rate_hz / 2.0, 200)
     out: dict[str, Any] = {'rate_hz': rate_hz, 'f_measured_hz': f_meas.tolist(), 'f_theory_hz': f_theory.tolist(),
                            'cases': []}
-    for fig, label, settings, tf, slowest in cases(rate_hz):
-        h_meas = np.array([measure(settings, float(f), rate_hz, slowest) for f in f_meas])
+    for fig, label, settings, tf, slowest, amplitude in cases(rate_hz):
+        h_meas = np.array([measure(settings, float(f), rate_hz, slowest, amplitude) for f in f_meas])
         h_th = tf(f_meas)
         dmag = np.abs(db(h_meas) - db(h_th))
         dph = np.abs((phase_deg(h_meas) - phase_deg(h_th) + 180.0) % 360.0 - 180.0)

@@ -27,7 +27,7 @@ from .tables import (
     sensitivity_table,
     verdicts_table,
 )
-from .verdicts import ACCURATE_DEG, BETTER_REL, COST_RATIO, DRIFT_REL, FLAT_REL, verdicts
+from .verdicts import ACCURATE_DEG, BETTER_REL, COST_RATIO, DRIFT_REL, DRIFT_SE, FLAT_REL, verdicts
 
 
 def write_report(results: dict[str, Any], out_dir: Path, command: str = '') -> dict[str, Any]:
@@ -98,7 +98,7 @@ def _verdicts_section(results: dict[str, Any]) -> list[str]:
         f'Thresholds: "barely changes" = range of the dataset-mean error within {FLAT_REL:.0%} of its median; '
         f'"beats"/"as accurate" = more than {BETTER_REL:.0%} apart; "much cheaper" = at least {COST_RATIO:g}x; '
         f'"stays accurate" = the least-squares trend of the window RMSE ends within {DRIFT_REL:g}x of where it '
-        f'starts and a mean below {ACCURATE_DEG:g} deg.',
+        f'starts (or rises by less than {DRIFT_SE:g} standard errors) and a mean below {ACCURATE_DEG:g} deg.',
         '',
         verdicts_table(results),
         '',

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -30,6 +31,7 @@ FLAT_REL = 0.20  # "barely changes": range of the mean error within 20 % of its 
 BETTER_REL = 0.10  # "beats"/"as accurate": more than 10 % apart
 COST_RATIO = 5.0  # "much cheaper": at least 5x
 DRIFT_REL = 1.25  # "stays accurate": the window RMSE's least-squares trend rises by less than 25 % over the run ...
+DRIFT_SE = 2.0  # ... or by less than twice its standard error (the windows' scatter) ...
 ACCURATE_DEG = 5.0  # ... and below 5 deg on average
 
 CLAIMS = {
@@ -173,16 +175,23 @@ def claim5_cost(results: dict[str, Any], form: str) -> Verdict:
 LONG_RUN_MIN_WINDOWS = 5
 
 
-def trend_ends(values: list[float]) -> tuple[float, float]:
-    """The least-squares line through ``values`` (one per window, evenly spaced) at the first and the last window.
+def trend_ends(values: list[float]) -> tuple[float, float, float]:
+    """The least-squares line through ``values`` (one per window, evenly spaced) at the first and the last window,
+    and the standard error of its rise from one to the other (0 with fewer than three values).
 
     A trend over every window, not the means of two fifths: a filter that tracks the drift has window errors that
-    scatter with the motion (0.13-0.36 deg over the 2 h run), and two fifths of that scatter can differ by a third
+    scatter with the motion (0.13-0.34 deg over the 2 h run), and two fifths of that scatter can differ by a third
     either way while the trend is flat."""
-    if len(values) < 2:
-        return values[0], values[0]
-    slope, start = np.polyfit(np.arange(len(values)), values, 1)
-    return float(start), float(start + slope * (len(values) - 1))
+    n = len(values)
+    if n < 2:
+        return values[0], values[0], 0.0
+    x = np.arange(n, dtype=float)
+    slope, start = np.polyfit(x, values, 1)
+    if n < 3:
+        return float(start), float(start + slope), 0.0
+    resid = np.asarray(values) - (start + slope * x)
+    se_slope = math.sqrt(float(resid @ resid) / (n - 2) / float(((x - x.mean()) ** 2).sum()))
+    return float(start), float(start + slope * (n - 1)), se_slope * (n - 1)
 
 
 def claim6_long_run(results: dict[str, Any], form: str) -> Verdict:
@@ -197,12 +206,12 @@ def claim6_long_run(results: dict[str, Any], form: str) -> Verdict:
     # "Early" skips the first window (when there are others): it holds the start-up convergence.
     first, last = mean(lr[1 : 1 + k] or lr[:k]), mean(lr[-k:])
     mean_lr = mean(lr)
-    t0, t1 = trend_ends(lr[1:] if len(lr) > 1 else lr)
+    t0, t1, se = trend_ends(lr[1:] if len(lr) > 1 else lr)
     if len(lr) < LONG_RUN_MIN_WINDOWS:
         # An early and a late fifth that are the same window (or inside the start-up rest) say nothing of drift.
         v = (f'not measured: {len(lr)} window(s) of {mine["window_s"]:g} s; a drift needs at least '
              f'{LONG_RUN_MIN_WINDOWS} (--long-run-s)')
-    elif t1 > DRIFT_REL * t0:
+    elif t1 > DRIFT_REL * t0 and t1 - t0 > DRIFT_SE * se:
         v = 'does not hold: the error grows'
     elif mean_lr > ACCURATE_DEG:
         v = f'does not hold: no drift, but {mean_lr:.1f} deg throughout'
@@ -211,7 +220,8 @@ def claim6_long_run(results: dict[str, Any], form: str) -> Verdict:
     per_filter = '; '.join(f'{label} {mean(f["rmse_total_deg"]):.2f} (last fifth {mean(f["rmse_total_deg"][-k:]):.2f})'
                       for label, f in filters.items())
     text = (f'{CCF_LABEL[form]}: RMSE per {mine["window_s"]:g} s window {first:.2f} deg early, {last:.2f} deg in the '
-            f'last fifth, max {max(lr):.2f}; trend {t0:.2f} -> {t1:.2f} deg. Means: ' + per_filter)
+            f'last fifth, max {max(lr):.2f}; trend {t0:.2f} -> {t1:.2f} deg (standard error of the rise {se:.2f}). '
+            'Means: ' + per_filter)
     return Verdict(6, form, v, text)
 
 
