@@ -7,7 +7,10 @@ or its ground vehicle (``ccf simulate --motion vehicle``: accelerations and brak
 slopes); three seeds each. Prints the mean total and inclination RMSE (9-D) and the 6-D total with one heading
 offset fitted, degrees, over the moving samples.
 
-Usage: python benchmarks/simulated_accuracy.py [--seeds 0,1,2] [NAME=VALUE ...]
+With ``--vqf`` the same data also go through VQF (``pip install vqf``; its defaults, online, 9-D and 6-D) for a
+column beside. The README's previous-default column is this script run on the core of commit 931d260.
+
+Usage: python benchmarks/simulated_accuracy.py [--seeds 0,1,2] [--vqf] [NAME=VALUE ...]
 """
 
 from __future__ import annotations
@@ -44,12 +47,28 @@ SCENARIOS: dict[str, tuple[str, dict[str, Any]]] = {
 }
 
 
+def _data(name: str, seed: int) -> Any:
+    kw = dict(SCENARIOS[name][1])
+    if kw.pop('vehicle', False):
+        return generate_vehicle(duration_s=240.0, seed=seed, **kw)
+    return generate(duration_s=240.0, seed=seed, **kw)
+
+
+def run_vqf(args: tuple[str, int]) -> tuple[str, tuple[float, float, float]]:
+    """VQF (defaults, online) on the same data: its 9-D frame is ENU like ours (z up, y along the horizontal field)."""
+    from vqf import VQF
+
+    name, seed = args
+    d = _data(name, seed)
+    v = VQF(float(np.median(np.diff(d.t_s))))
+    out = v.updateBatch(np.ascontiguousarray(d.gyr), np.ascontiguousarray(d.acc), np.ascontiguousarray(d.mag * 1e6))
+    s9 = summarize(out['quat9D'], d.q_true, d.moving)
+    return name, (s9.total_rmse_deg, s9.inclination_rmse_deg, fitted_total_rmse_deg(out['quat6D'], d.q_true, d.moving))
+
+
 def run(args: tuple[str, int, dict[str, str]]) -> tuple[str, tuple[float, float, float]]:
     name, seed, settings = args
-    kw = dict(SCENARIOS[name][1])
-    d = generate_vehicle(duration_s=240.0, seed=seed, **kw) if kw.pop('vehicle', False) else generate(
-        duration_s=240.0, seed=seed, **kw
-    )
+    d = _data(name, seed)
     f9, _ = build(settings)
     q9 = run_batch(f9, d.t_s, d.gyr, d.acc, d.mag).quat
     s9 = summarize(q9, d.q_true, d.moving)
@@ -61,20 +80,33 @@ def run(args: tuple[str, int, dict[str, str]]) -> tuple[str, tuple[float, float,
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument('--seeds', default='0,1,2')
+    ap.add_argument('--vqf', action='store_true', help='also run VQF (pip install vqf) on the same data')
     ap.add_argument('params', nargs='*', help='NAME=VALUE filter settings')
     a = ap.parse_args()
     settings = dict(p.split('=', 1) for p in a.params)
     seeds = [int(s) for s in a.seeds.split(',')]
+    if a.vqf:
+        try:
+            import vqf  # noqa: F401
+        except ImportError:
+            raise SystemExit('--vqf needs the vqf package: pip install vqf') from None
     res = map_trials(run, [(name, seed, settings) for name in SCENARIOS for seed in seeds])
+    res_vqf = map_trials(run_vqf, [(name, seed) for name in SCENARIOS for seed in seeds]) if a.vqf else []
     print(f'settings {settings or "defaults"}; mean over seeds {seeds}, degrees')
-    print(f'{"scenario":18s} {"9-D total":>9s} {"incl.":>7s} {"6-D fit":>8s}   what')
+    head = f'{"scenario":18s} {"9-D total":>9s} {"incl.":>7s} {"6-D fit":>8s}'
+    print(head + (f'   {"VQF total":>9s} {"incl.":>7s} {"6-D fit":>8s}' if a.vqf else '') + '   what')
     rows = []
     for name, (what, _) in SCENARIOS.items():
         m = np.mean([r for n, r in res if n == name], axis=0)
+        row = f'{name:18s} {m[0]:9.2f} {m[1]:7.2f} {m[2]:8.2f}'
+        if a.vqf:
+            v = np.mean([r for n, r in res_vqf if n == name], axis=0)
+            m = np.concatenate([m, v])
+            row += f'   {v[0]:9.2f} {v[1]:7.2f} {v[2]:8.2f}'
         rows.append(m)
-        print(f'{name:18s} {m[0]:9.2f} {m[1]:7.2f} {m[2]:8.2f}   {what}')
+        print(f'{row}   {what}')
     m = np.mean(rows, axis=0)
-    print(f'{"mean":18s} {m[0]:9.2f} {m[1]:7.2f} {m[2]:8.2f}')
+    print(f'{"mean":18s} ' + ' '.join(f'{x:{w}.2f}' for x, w in zip(m, (9, 7, 8, 11, 7, 8)[:len(m)], strict=True)))
 
 
 if __name__ == '__main__':

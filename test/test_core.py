@@ -184,6 +184,18 @@ def test_config_file_lists_every_parameter_with_its_default():
     assert (Path(__file__).resolve().parents[1] / 'config' / 'ccf.yaml').read_text() == config_yaml()
 
 
+def test_vehicle_profile_is_a_valid_override():
+    """config/ccf_vehicle.yaml names only real parameters, in range, and changes what it says it changes."""
+    from ccf_ros.offline.params_file import load_params_file
+    from ccf_ros.settings import build
+
+    cfg = load_params_file(Path(__file__).resolve().parents[1] / 'config' / 'ccf_vehicle.yaml')
+    assert set(cfg) == {'tau_acc_lp_s', 'tau_acc_s', 'tau_bias_s'}
+    f, _ = build(cfg)
+    assert (f.params.tau_acc_lp_s, f.params.tau_acc_s, f.params.tau_bias_s) == (8.0, 2.0, 20.0)
+    assert f.params.tau_ncf_s == CcfParams().tau_ncf_s  # the rest stays at the defaults
+
+
 # --- the NCF -> LCF cascade (default) -------------------------------------------------------------------------------
 
 
