@@ -280,6 +280,28 @@ def test_bursts_of_stamps_do_not_stall_the_bias_update():
     assert err[-1] < 0.0115  # measured 0.0096 (regular stamps: 0.0086)
 
 
+def test_jittered_stamps_reuse_the_gains_of_their_bin(monkeypatch):
+    """Stamps jittered by 2 % of the period: the per-sample gains and the bias update's constants are computed once
+    per 0.1 % bin of the span they visit and then reused, not once per sample or block (measured at 40 Hz: 171 and
+    84 computations for 4800 samples and ~2400 blocks)."""
+    import ccf_ros.core.ccf as ccf_module
+
+    calls = {'sample': 0, 'block': 0}
+    for kind, cls in (('sample', ccf_module._Coefficients), ('block', ccf_module._BlockCoefficients)):
+        make = cls.of.__func__
+
+        def counted(c, p, key, kind=kind, make=make):
+            calls[kind] += 1
+            return make(c, p, key)
+
+        monkeypatch.setattr(cls, 'of', classmethod(counted))
+    d = generate(120.0, 40.0, seed=1)
+    t = np.sort(d.t_s + np.random.default_rng(0).normal(0.0, 0.02 / 40.0, len(d.t_s)))
+    r = run_batch(QuaternionCcf(), t, d.gyr, d.acc, d.mag)
+    assert np.all(r.status[1:] == Status.UPDATED)
+    assert calls['sample'] < 210 and calls['block'] < 100, calls
+
+
 def test_a_drive_off_is_not_learnt_as_bias():
     """After a rest (the bias known), a robot drives off at 1 m/s² for 10 s while weaving (yaw ±30°/s): the
     accelerometer tilts by 5.8° while the gyro says no tilt. The NCF does not use observations beyond 3 sigma of what

@@ -71,8 +71,10 @@ from __future__ import annotations
 
 import cmath
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from math import atan2, cos, sin, sqrt
+from typing import TypeVar
 
 from .base import CommonParams, OrientationFilter, check_positive, check_range
 from .quaternion import Quat, level_quat, quat_from_acc_mag_scalar, relevel
@@ -246,8 +248,8 @@ class _Coefficients:
 
     @classmethod
     def of(cls, p: CcfParams, key: int) -> _Coefficients:
-        """The coefficients of bin ``key`` of sample periods, ``exp((key ± 0.5) / 1000)`` s (:func:`_bin`)."""
-        dt_lo, dt, dt_hi = (math.exp((key + h) / 1000.0) for h in (-0.5, 0.0, 0.5))
+        """The coefficients of bin ``key`` of sample periods (:func:`_bin`)."""
+        dt_lo, dt, dt_hi = _bin_range(key)
         k_rest = -math.expm1(-dt / p.rest_tau_s)
         # Rest thresholds apply to (sample - new low-pass) = (1 - k_rest) * (sample - old low-pass).
         rest_keep2 = (1.0 - k_rest) ** 2 if k_rest < 1.0 else 1e-300
@@ -284,7 +286,8 @@ class _Coefficients:
 
 @dataclass(frozen=True, slots=True)
 class _BlockCoefficients:
-    """Constants of one NCF bias update spanning ``t`` s of samples (see :meth:`QuaternionCcf._ncf_update`)."""
+    """Constants of one NCF bias update for block spans in ``[t_lo, t_hi]`` (s), computed at the bin's middle (see
+    :meth:`QuaternionCcf._ncf_update`)."""
 
     t_lo: float
     t_hi: float
@@ -305,13 +308,14 @@ class _BlockCoefficients:
     gate_p: float
 
     @classmethod
-    def of(cls, p: CcfParams, t: float) -> _BlockCoefficients:
+    def of(cls, p: CcfParams, key: int) -> _BlockCoefficients:
+        """The constants of bin ``key`` of block spans (:func:`_bin`)."""
+        t_lo, t, t_hi = _bin_range(key)
         m = butterworth_step(p.tau_acc_lp_s, t)
         w = p.bias_walk_rad_s_sqrt_s
         return cls(
-            # Reused while the block's span stays within 0.1 % (jittered stamps), like the per-sample gains.
-            t_lo=t * (1.0 - 1e-3),
-            t_hi=t * (1.0 + 1e-3),
+            t_lo=t_lo,
+            t_hi=t_hi,
             m_a=1.0 - m[0],
             m12=m[1],
             m21=m[2],
@@ -335,14 +339,34 @@ class _BlockCoefficients:
 
 
 def _bin(dt: float) -> int:
-    """The 0.1 % bin of sample periods (s, > 0) that holds ``dt``.
+    """The 0.1 % bin of time spans (s, > 0: a sample period, a bias-update block) that holds ``dt``.
 
     Stamps jitter: float stamps near 1.7e9 s resolve 0.24 µs (dt wobbles by ~1e-4 relative), a driver that stamps on
     arrival by far more. Gains are taken at the bin's middle (a 0.05 % change of a blend gain is immaterial; the
     integration uses the exact dt), so a stream costs as many computations of them as it visits bins, not one per
-    sample.
+    sample or block.
     """
     return round(math.log(dt) * 1000.0)
+
+
+def _bin_range(key: int) -> tuple[float, float, float]:
+    """Lower edge, middle and upper edge of bin ``key`` (:func:`_bin`), s."""
+    return math.exp((key - 0.5) / 1000.0), math.exp(key / 1000.0), math.exp((key + 0.5) / 1000.0)
+
+
+_C = TypeVar('_C')
+
+
+def _cached(cache: dict[int, _C], span_s: float, make: Callable[[int], _C]) -> _C:
+    """``make(bin)`` for the bin of ``span_s`` (s), from ``cache`` (kept to 256 bins: jitter or rate changes without
+    end must not grow it)."""
+    key = _bin(span_s)
+    c = cache.get(key)
+    if c is None:
+        if len(cache) >= 256:
+            cache.clear()
+        c = cache[key] = make(key)
+    return c
 
 
 def _drift(var: float, bias_step: float, var_arw: float) -> float:
@@ -375,7 +399,7 @@ class QuaternionCcf(OrientationFilter):
 
     name = 'ccf'
     __slots__ = (
-        '_bcoef', '_coef', '_coef_cache', '_gyro_lp', '_heading_known', '_mag_bounds', '_mag_candidate', '_mag_have_ref',
+        '_bcoef', '_bcoef_cache', '_coef', '_coef_cache', '_gyro_lp', '_heading_known', '_mag_bounds', '_mag_candidate', '_mag_have_ref',
         '_mag_learn_n', '_mag_learn_s', '_mag_new_s', '_mag_ref', '_mag_rejected_t', '_model', '_n_init', '_p_bias',
         '_rest_s', '_u_bias', '_var_head', '_var_incl', '_x',
     )
@@ -391,8 +415,9 @@ class QuaternionCcf(OrientationFilter):
         # many, the time it spans (s) and its samples.
         self._x = (0.0, 0.0, 0.0, 0.0, 0.0, GRAVITY_M_S2, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0, 0.0, 0)
         self._coef_cache: dict[int, _Coefficients] = {}
+        self._bcoef_cache: dict[int, _BlockCoefficients] = {}
         self._coef = self._coefficients(0.01)
-        self._bcoef = _BlockCoefficients.of(self.params, BIAS_UPDATE_PERIOD_S)
+        self._bcoef = self._block_coefficients(BIAS_UPDATE_PERIOD_S)
         self._gyro_lp = (0.0, 0.0, 0.0)
         self._rest_s = 0.0
         self._n_init = 0
@@ -455,19 +480,19 @@ class QuaternionCcf(OrientationFilter):
         self._mag_candidate = (0.0, 0.0, 0.0)
 
     def _coefficients(self, dt: float) -> _Coefficients:
-        """The per-sample coefficients for a sample period of ``dt`` s (> 0), from the cache of recent bins."""
-        key = _bin(dt)
-        c = self._coef_cache.get(key)
-        if c is None:
-            if len(self._coef_cache) >= 256:  # jitter or rate changes without end: keep the cache small
-                self._coef_cache.clear()
-            c = self._coef_cache[key] = _Coefficients.of(self.params, key)
-        return c
+        """The per-sample coefficients for a sample period of ``dt`` s (> 0)."""
+        return _cached(self._coef_cache, dt, lambda key: _Coefficients.of(self.params, key))
+
+    def _block_coefficients(self, t: float) -> _BlockCoefficients:
+        """The bias update's constants for a block spanning ``t`` s (> 0)."""
+        return _cached(self._bcoef_cache, t, lambda key: _BlockCoefficients.of(self.params, key))
 
     def _params_changed(self) -> None:
         self._coef_cache = {}
-        self._coef = self._coefficients(self._coef.dt_lo)
-        self._bcoef = _BlockCoefficients.of(self.params, BIAS_UPDATE_PERIOD_S)
+        self._bcoef_cache = {}
+        # The bins' middles: the same bins as before the change.
+        self._coef = self._coefficients(math.sqrt(self._coef.dt_lo * self._coef.dt_hi))
+        self._bcoef = self._block_coefficients(math.sqrt(self._bcoef.t_lo * self._bcoef.t_hi))
         if not self.params.rest_bias:
             self.at_rest = False
             self._rest_s = 0.0
@@ -810,7 +835,7 @@ class QuaternionCcf(OrientationFilter):
         """
         c = self._bcoef
         if not c.t_lo <= t <= c.t_hi:
-            c = self._bcoef = _BlockCoefficients.of(self.params, t)
+            c = self._bcoef = self._block_coefficients(t)
         rb0 = r0x * bx + r0y * by + r0z * bz
         rb1 = r1x * bx + r1y * by + r1z * bz
         rbv = vx * bx + vy * by + vz * bz
