@@ -38,6 +38,52 @@ def _ramp(t: np.ndarray, rest: float) -> np.ndarray:
     return r * r * (3 - 2 * r)
 
 
+def _sample_count(duration_s: float, rate_hz: float, seed: int) -> int:
+    """Number of samples of a simulated recording; raises :class:`ParameterError` for an unusable request."""
+    if not (0 < duration_s < math.inf and 0 < rate_hz < math.inf):
+        raise ParameterError(f'duration and rate must be finite and > 0, got {duration_s!r} s, {rate_hz!r} Hz')
+    if not (isinstance(seed, (int, np.integer)) and seed >= 0):
+        raise ParameterError(f'seed must be an integer >= 0, got {seed!r}')
+    n = int(round(duration_s * rate_hz))
+    if n < 2:
+        raise ParameterError(f'{duration_s:g} s at {rate_hz:g} Hz is {n} sample(s): ask for at least 2')
+    return n
+
+
+def _sense(
+    rng: np.random.Generator,
+    q: np.ndarray,
+    omega: np.ndarray,
+    specific_force_world: np.ndarray,
+    tr: np.ndarray,
+    rate_hz: float,
+    *,
+    gyro_noise_rad_s: float,
+    acc_noise_m_s2: float,
+    mag_noise_t: float,
+    bias_init_rad_s: float,
+    bias_walk_rad_s_sqrt_s: float,
+    bias_drift_rad_s: float = 0.0,
+    bias_drift_period_s: float = 3600.0,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """What the sensors read of a motion: ``(gyr, acc, mag, bias)``, (N,3) each, from the orientation ``q`` (N,4,
+    body->ENU), the body rate ``omega`` (N,3, rad/s), the specific force in the world ``specific_force_world`` (N,3,
+    m/s², gravity included) at times ``tr`` (N, s). The gyro bias starts at ``N(0, bias_init)`` per axis,
+    random-walks, and (if ``bias_drift_rad_s`` > 0) drifts as a sinusoid of that amplitude and period."""
+    n = len(tr)
+    q_inv = quat_conj(q)
+    acc = quat_rotate(q_inv, specific_force_world) + acc_noise_m_s2 * rng.standard_normal((n, 3))
+    mag = quat_rotate(q_inv, np.broadcast_to(MAG_WORLD, (n, 3))) + mag_noise_t * rng.standard_normal((n, 3))
+    bias = bias_init_rad_s * rng.standard_normal(3) + np.cumsum(
+        bias_walk_rad_s_sqrt_s / np.sqrt(rate_hz) * rng.standard_normal((n, 3)), axis=0
+    )
+    if bias_drift_rad_s > 0.0:
+        phase = rng.uniform(0, 2 * np.pi, 3)
+        bias = bias + bias_drift_rad_s * (np.sin(2 * np.pi * tr[:, None] / bias_drift_period_s + phase) - np.sin(phase))
+    gyr = omega + bias + gyro_noise_rad_s * rng.standard_normal((n, 3))
+    return gyr, acc, mag, bias
+
+
 def generate(
     duration_s: float = 60.0,
     rate_hz: float = 286.0,
@@ -61,13 +107,7 @@ def generate(
     Deterministic for a seed. The gyro bias starts at ``N(0, bias_init)`` per axis, random-walks, and (if
     ``bias_drift_rad_s`` > 0) drifts as a sinusoid of that amplitude and ``bias_drift_period_s`` (thermal drift).
     """
-    if not (0 < duration_s < math.inf and 0 < rate_hz < math.inf):
-        raise ParameterError(f'duration and rate must be finite and > 0, got {duration_s!r} s, {rate_hz!r} Hz')
-    if not (isinstance(seed, (int, np.integer)) and seed >= 0):
-        raise ParameterError(f'seed must be an integer >= 0, got {seed!r}')
-    n = int(round(duration_s * rate_hz))
-    if n < 2:
-        raise ParameterError(f'{duration_s:g} s at {rate_hz:g} Hz is {n} sample(s): ask for at least 2')
+    n = _sample_count(duration_s, rate_hz, seed)
     rng = np.random.default_rng(seed)
     tr = np.arange(n) / rate_hz
     rest = min(rest_s, duration_s / 4)
@@ -100,16 +140,12 @@ def generate(
             ph = rng.uniform(0, 2 * np.pi)
             acc_lin[:, axis] -= pos_amp / 3 * (2 * np.pi * f) ** 2 * np.sin(2 * np.pi * f * tr + ph)
     acc_lin *= ramp[:, None]
-    q_inv = quat_conj(q)
-    acc = quat_rotate(q_inv, acc_lin + [0.0, 0.0, G]) + acc_noise_m_s2 * rng.standard_normal((n, 3))
-    mag = quat_rotate(q_inv, np.broadcast_to(MAG_WORLD, (n, 3))) + mag_noise_t * rng.standard_normal((n, 3))
-    bias = bias_init_rad_s * rng.standard_normal(3) + np.cumsum(
-        bias_walk_rad_s_sqrt_s / np.sqrt(rate_hz) * rng.standard_normal((n, 3)), axis=0
+    gyr, acc, mag, bias = _sense(
+        rng, q, omega, acc_lin + [0.0, 0.0, G], tr, rate_hz, gyro_noise_rad_s=gyro_noise_rad_s,
+        acc_noise_m_s2=acc_noise_m_s2, mag_noise_t=mag_noise_t, bias_init_rad_s=bias_init_rad_s,
+        bias_walk_rad_s_sqrt_s=bias_walk_rad_s_sqrt_s, bias_drift_rad_s=bias_drift_rad_s,
+        bias_drift_period_s=bias_drift_period_s,
     )
-    if bias_drift_rad_s > 0.0:
-        phase = rng.uniform(0, 2 * np.pi, 3)
-        bias = bias + bias_drift_rad_s * (np.sin(2 * np.pi * tr[:, None] / bias_drift_period_s + phase) - np.sin(phase))
-    gyr = omega + bias + gyro_noise_rad_s * rng.standard_normal((n, 3))
     return SimData(t_s=t0_s + tr, q_true=q, gyr=gyr, acc=acc, mag=mag, bias=bias, moving=tr >= rest)
 
 
@@ -136,13 +172,7 @@ def generate_vehicle(
 
     Deterministic for a seed; the same noise and bias model as :func:`generate`, ``moving`` after ``rest_s``.
     """
-    if not (0 < duration_s < math.inf and 0 < rate_hz < math.inf):
-        raise ParameterError(f'duration and rate must be finite and > 0, got {duration_s!r} s, {rate_hz!r} Hz')
-    if not (isinstance(seed, (int, np.integer)) and seed >= 0):
-        raise ParameterError(f'seed must be an integer >= 0, got {seed!r}')
-    n = int(round(duration_s * rate_hz))
-    if n < 2:
-        raise ParameterError(f'{duration_s:g} s at {rate_hz:g} Hz is {n} sample(s): ask for at least 2')
+    n = _sample_count(duration_s, rate_hz, seed)
     rng = np.random.default_rng(seed)
     dt = 1.0 / rate_hz
     tr = np.arange(n) * dt
@@ -182,13 +212,10 @@ def generate_vehicle(
     # Specific force: the vehicle's acceleration in the world (along the heading, and centripetal), plus gravity.
     c, s = np.cos(yaw), np.sin(yaw)
     acc_world = np.stack((along * c - lateral * s, along * s + lateral * c, np.full(n, G)), axis=1)
-    q_inv = quat_conj(q)
-    acc = quat_rotate(q_inv, acc_world) + acc_noise_m_s2 * rng.standard_normal((n, 3))
-    mag = quat_rotate(q_inv, np.broadcast_to(MAG_WORLD, (n, 3))) + mag_noise_t * rng.standard_normal((n, 3))
-    bias = bias_init_rad_s * rng.standard_normal(3) + np.cumsum(
-        bias_walk_rad_s_sqrt_s / np.sqrt(rate_hz) * rng.standard_normal((n, 3)), axis=0
+    gyr, acc, mag, bias = _sense(
+        rng, q, omega, acc_world, tr, rate_hz, gyro_noise_rad_s=gyro_noise_rad_s, acc_noise_m_s2=acc_noise_m_s2,
+        mag_noise_t=mag_noise_t, bias_init_rad_s=bias_init_rad_s, bias_walk_rad_s_sqrt_s=bias_walk_rad_s_sqrt_s,
     )
-    gyr = omega + bias + gyro_noise_rad_s * rng.standard_normal((n, 3))
     return SimData(t_s=t0_s + tr, q_true=q, gyr=gyr, acc=acc, mag=mag, bias=bias, moving=tr >= rest_s)
 
 
