@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -16,6 +17,57 @@ from .bagio import open_writer, refuse_existing, staged, typestore
 G = 9.80665
 #: Earth field in ENU (tesla): 50 µT, dip 60° (roughly central Europe).
 MAG_WORLD = 50e-6 * np.array([0.0, np.cos(np.radians(60.0)), -np.sin(np.radians(60.0))])
+#: µ0 / 4π, T m / A.
+_MU0_4PI = 1e-7
+
+#: A magnetic environment: the world field (N,3, T, ENU) at positions (N,3, m) and times (N,, s from the start).
+Field = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+def dipole_field(center_m: Any, moment_a_m2: Any, earth_t: Any = MAG_WORLD) -> Field:
+    """The earth field plus a magnetic dipole fixed in the world at ``center_m`` (3, m) with moment ``moment_a_m2``
+    (3, A m²): a magnet, a steel beam or a machine near the workspace. The field turns and changes its norm and dip
+    with position, by tens of degrees within tens of centimetres of a strong source."""
+    c = np.asarray(center_m, dtype=float)
+    m = np.asarray(moment_a_m2, dtype=float)
+    e = np.asarray(earth_t, dtype=float)
+
+    def field(pos: np.ndarray, t: np.ndarray) -> np.ndarray:
+        r = pos - c
+        d = np.linalg.norm(r, axis=1, keepdims=True)
+        u = r / d
+        return e + _MU0_4PI * (3.0 * u * (u @ m)[:, None] - m) / d**3
+
+    return field
+
+
+def wander_path(amplitude_m: float, rng: np.random.Generator, rest_s: float = 5.0) -> Callable[[np.ndarray], np.ndarray]:
+    """A slow wander about the start: per axis a sine of ``amplitude_m`` (m) at 0.02-0.08 Hz (random phase from
+    ``rng``), starting smoothly over the 2 s after ``rest_s`` — a hand-guided sensor that stays seconds in each part
+    of the workspace (for :func:`generate`'s ``path_m``)."""
+    f = rng.uniform(0.02, 0.08, 3)
+    ph = rng.uniform(0.0, 2.0 * np.pi, 3)
+
+    def path(t: np.ndarray) -> np.ndarray:
+        return amplitude_m * (np.sin(2 * np.pi * f * t[:, None] + ph) - np.sin(ph)) * _ramp(t, rest_s)[:, None]
+
+    return path
+
+
+def field_change(t_change_s: float, norm_scale: float, dip_change_rad: float, earth_t: Any = MAG_WORLD) -> Field:
+    """A uniform field that changes once at ``t_change_s`` (s from the start) to another uniform field: its norm times
+    ``norm_scale``, its dip (downwards) plus ``dip_change_rad``, its horizontal direction (north) kept — a robot that
+    drives into a steel-framed building, where the field is homogeneous again but not the one outside."""
+    e = np.asarray(earth_t, dtype=float)
+    norm = float(np.linalg.norm(e))
+    dip = math.atan2(-e[2], math.hypot(e[0], e[1])) + dip_change_rad
+    north = e[:2] / math.hypot(e[0], e[1])
+    after = norm_scale * norm * np.array([north[0] * math.cos(dip), north[1] * math.cos(dip), -math.sin(dip)])
+
+    def field(pos: np.ndarray, t: np.ndarray) -> np.ndarray:
+        return np.where((t >= t_change_s)[:, None], after, e)
+
+    return field
 
 
 @dataclass
@@ -65,15 +117,18 @@ def _sense(
     bias_walk_rad_s_sqrt_s: float,
     bias_drift_rad_s: float = 0.0,
     bias_drift_period_s: float = 3600.0,
+    field_world: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """What the sensors read of a motion: ``(gyr, acc, mag, bias)``, (N,3) each, from the orientation ``q`` (N,4,
     body->ENU), the body rate ``omega`` (N,3, rad/s), the specific force in the world ``specific_force_world`` (N,3,
-    m/s², gravity included) at times ``tr`` (N, s). The gyro bias starts at ``N(0, bias_init)`` per axis,
-    random-walks, and (if ``bias_drift_rad_s`` > 0) drifts as a sinusoid of that amplitude and period."""
+    m/s², gravity included) at times ``tr`` (N, s), in the world field ``field_world`` (N,3, T; None: the uniform
+    :data:`MAG_WORLD`). The gyro bias starts at ``N(0, bias_init)`` per axis, random-walks, and (if
+    ``bias_drift_rad_s`` > 0) drifts as a sinusoid of that amplitude and period."""
     n = len(tr)
     q_inv = quat_conj(q)
     acc = quat_rotate(q_inv, specific_force_world) + acc_noise_m_s2 * rng.standard_normal((n, 3))
-    mag = quat_rotate(q_inv, np.broadcast_to(MAG_WORLD, (n, 3))) + mag_noise_t * rng.standard_normal((n, 3))
+    world = np.broadcast_to(MAG_WORLD, (n, 3)) if field_world is None else field_world
+    mag = quat_rotate(q_inv, world) + mag_noise_t * rng.standard_normal((n, 3))
     bias = bias_init_rad_s * rng.standard_normal(3) + np.cumsum(
         bias_walk_rad_s_sqrt_s / np.sqrt(rate_hz) * rng.standard_normal((n, 3)), axis=0
     )
@@ -100,12 +155,17 @@ def generate(
     bias_drift_rad_s: float = 0.0,
     bias_drift_period_s: float = 3600.0,
     translation_m: float = 0.1,
+    field: Field | None = None,
+    path_m: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> SimData:
     """Hand-held-like motion: smooth rotations up to ~±80° (times ``rot_scale``), slow heading changes, and
-    translations of about ``translation_m`` (m, at 0.2-1.5 Hz: linear accelerations up to several m/s²).
+    translations of about ``translation_m`` (m, at 0.2-1.5 Hz: linear accelerations up to several m/s²) about
+    ``path_m(t)`` ((N,3) m at times t (N,) s from the start; None: the origin, a smooth path whose acceleration is
+    added), in the magnetic environment ``field`` (:data:`Field`; None: the uniform :data:`MAG_WORLD`).
 
-    Deterministic for a seed. The gyro bias starts at ``N(0, bias_init)`` per axis, random-walks, and (if
-    ``bias_drift_rad_s`` > 0) drifts as a sinusoid of that amplitude and ``bias_drift_period_s`` (thermal drift).
+    Deterministic for a seed (the same seed gives the same motion and noise whatever ``field``). The gyro bias starts
+    at ``N(0, bias_init)`` per axis, random-walks, and (if ``bias_drift_rad_s`` > 0) drifts as a sinusoid of that
+    amplitude and ``bias_drift_period_s`` (thermal drift).
     """
     n = _sample_count(duration_s, rate_hz, seed)
     rng = np.random.default_rng(seed)
@@ -134,17 +194,25 @@ def generate(
     omega = 2.0 * quat_mul(quat_conj(q), dq)[:, 1:]
     pos_amp = translation_m
     acc_lin = np.zeros((n, 3))
+    pos = np.zeros((n, 3))
     for axis in range(3):
         for _ in range(3):
             f = rng.uniform(0.2, 1.5)
             ph = rng.uniform(0, 2 * np.pi)
             acc_lin[:, axis] -= pos_amp / 3 * (2 * np.pi * f) ** 2 * np.sin(2 * np.pi * f * tr + ph)
+            pos[:, axis] += pos_amp / 3 * np.sin(2 * np.pi * f * tr + ph)
     acc_lin *= ramp[:, None]
+    # (The position is the wobble whose acceleration the accelerometer feels, to within the 2 s start ramp.)
+    pos *= ramp[:, None]
+    if path_m is not None:
+        path = path_m(tr)
+        pos += path
+        acc_lin += np.gradient(np.gradient(path, tr, axis=0), tr, axis=0)
     gyr, acc, mag, bias = _sense(
         rng, q, omega, acc_lin + [0.0, 0.0, G], tr, rate_hz, gyro_noise_rad_s=gyro_noise_rad_s,
         acc_noise_m_s2=acc_noise_m_s2, mag_noise_t=mag_noise_t, bias_init_rad_s=bias_init_rad_s,
         bias_walk_rad_s_sqrt_s=bias_walk_rad_s_sqrt_s, bias_drift_rad_s=bias_drift_rad_s,
-        bias_drift_period_s=bias_drift_period_s,
+        bias_drift_period_s=bias_drift_period_s, field_world=None if field is None else field(pos, tr),
     )
     return SimData(t_s=t0_s + tr, q_true=q, gyr=gyr, acc=acc, mag=mag, bias=bias, moving=tr >= rest)
 
@@ -212,6 +280,71 @@ def generate_vehicle(
     # Specific force: the vehicle's acceleration in the world (along the heading, and centripetal), plus gravity.
     c, s = np.cos(yaw), np.sin(yaw)
     acc_world = np.stack((along * c - lateral * s, along * s + lateral * c, np.full(n, G)), axis=1)
+    gyr, acc, mag, bias = _sense(
+        rng, q, omega, acc_world, tr, rate_hz, gyro_noise_rad_s=gyro_noise_rad_s, acc_noise_m_s2=acc_noise_m_s2,
+        mag_noise_t=mag_noise_t, bias_init_rad_s=bias_init_rad_s, bias_walk_rad_s_sqrt_s=bias_walk_rad_s_sqrt_s,
+    )
+    return SimData(t_s=t0_s + tr, q_true=q, gyr=gyr, acc=acc, mag=mag, bias=bias, moving=tr >= rest_s)
+
+
+def generate_swing(
+    duration_s: float = 200.0,
+    rate_hz: float = 51.0,
+    seed: int = 0,
+    *,
+    rest_s: float = 5.0,
+    length_m: float = 0.5,
+    amplitude_rad: tuple[float, float] = (np.radians(10.0), np.radians(45.0)),
+    gyro_noise_rad_s: float = 0.005,
+    acc_noise_m_s2: float = 0.05,
+    mag_noise_t: float = 0.5e-6,
+    bias_init_rad_s: float = np.radians(0.5),
+    bias_walk_rad_s_sqrt_s: float = 2e-4,
+    t0_s: float = 1.7e9,
+) -> SimData:
+    """A pendulum: the IMU on a rod of ``length_m`` (m) swinging about one horizontal axis (of random direction) at
+    its natural frequency, pushed every 15-30 s to an amplitude in ``amplitude_rad`` (range, rad) and decaying in
+    between, with a few degrees of wobble out of the plane and twist about the rod; the sensor is mounted on the rod
+    at a random fixed orientation. The specific force stays nearly along the rod: gravity hardly changes direction
+    in the body, and the body turns about one axis only — the case where a 6-D filter's heading drift is hardest to
+    learn.
+
+    Deterministic for a seed; the same noise and bias model as :func:`generate`, ``moving`` after ``rest_s``.
+    """
+    n = _sample_count(duration_s, rate_hz, seed)
+    rng = np.random.default_rng(seed)
+    tr = np.arange(n) / rate_hz
+    w = math.sqrt(G / length_m)
+    # Swing amplitude: pushed to a new amplitude every 15-30 s, decaying (damping time 40 s) in between.
+    amp = np.zeros(n)
+    t_push, a0 = rest_s, 0.0
+    while t_push < duration_s:
+        t_next = t_push + rng.uniform(15.0, 30.0)
+        a_new = rng.uniform(*amplitude_rad)
+        sel = (tr >= t_push) & (tr < t_next)
+        # The push takes a few swings (smoothly: no jerk in the rod's force), then the amplitude decays.
+        up = np.clip((tr[sel] - t_push) / 4.0, 0.0, 1.0)
+        up = up * up * (3 - 2 * up)
+        amp[sel] = (a0 + (a_new - a0) * up) * np.exp(-np.maximum(tr[sel] - t_push - 4.0, 0.0) / 40.0)
+        a0 = a_new * math.exp(-max(t_next - t_push - 4.0, 0.0) / 40.0)
+        t_push = t_next
+    phase = np.cumsum(np.full(n, w / rate_hz))
+    theta = amp * np.sin(phase)
+    wobble = np.radians(rng.uniform(1.0, 3.0)) * _ramp(tr, rest_s) * np.sin(phase * 0.5 + rng.uniform(0, 6.3))
+    twist = np.radians(rng.uniform(1.0, 4.0)) * _ramp(tr, rest_s) * np.sin(0.3 * tr + rng.uniform(0, 6.3))
+    axis_yaw = rng.uniform(-np.pi, np.pi)
+    q_axis = np.array([math.cos(axis_yaw / 2), 0.0, 0.0, math.sin(axis_yaw / 2)])
+    # Rod frame: swing about its x axis (horizontal), wobble about its y axis, twist about the rod (z).
+    q_rod = quat_mul(q_axis, quat_mul(quat_from_rotvec(np.stack((theta, wobble, 0 * tr), axis=1)),
+                                      quat_from_rotvec(np.stack((0 * tr, 0 * tr, twist), axis=1))))
+    mount = quat_from_rotvec(rng.uniform(-np.pi, np.pi, 3) * rng.uniform(0.0, 1.0))
+    q = quat_mul(q_rod, mount)
+    dt = 1.0 / rate_hz
+    dq = np.gradient(q, dt, axis=0)
+    omega = 2.0 * quat_mul(quat_conj(q), dq)[:, 1:]
+    # The sensor hangs length_m below the pivot: its acceleration from the rod's rotation.
+    pos = quat_rotate(q_rod, np.broadcast_to([0.0, 0.0, -length_m], (n, 3)))
+    acc_world = np.gradient(np.gradient(pos, dt, axis=0), dt, axis=0) + [0.0, 0.0, G]
     gyr, acc, mag, bias = _sense(
         rng, q, omega, acc_world, tr, rate_hz, gyro_noise_rad_s=gyro_noise_rad_s, acc_noise_m_s2=acc_noise_m_s2,
         mag_noise_t=mag_noise_t, bias_init_rad_s=bias_init_rad_s, bias_walk_rad_s_sqrt_s=bias_walk_rad_s_sqrt_s,
