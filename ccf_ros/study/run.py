@@ -64,7 +64,7 @@ class StudyOptions:
 #: Gyro bias of the long run (a consumer MEMS gyro): initial N(0, 0.5°/s) per axis, thermal drift of ±0.3°/s over
 #: an hour, rate random walk 2e-5 rad/s/√s (0.07°/s after 2 h). Pure rotation, no linear acceleration: the run
 #: measures the bias claim; linear accelerations are what BROAD's trials measure.
-LONG_RUN_BIAS = {
+LONG_RUN_BIAS: dict[str, float] = {
     'translation_m': 0.0,
     'bias_init_rad_s': math.radians(0.5),
     'bias_drift_rad_s': math.radians(0.3),
@@ -75,7 +75,13 @@ LONG_RUN_BIAS = {
 
 def long_run_dataset(opts: StudyOptions) -> Dataset:
     """The simulated long run: gentle rotations (±40°) with the time-varying bias of :data:`LONG_RUN_BIAS`."""
-    sim = generate(opts.long_run_s, opts.long_run_rate_hz, seed=opts.seed, rot_scale=0.5, rest_s=30.0, **LONG_RUN_BIAS)
+    b = LONG_RUN_BIAS
+    sim = generate(
+        opts.long_run_s, opts.long_run_rate_hz, seed=opts.seed, rot_scale=0.5, rest_s=30.0,
+        translation_m=b['translation_m'], bias_init_rad_s=b['bias_init_rad_s'],
+        bias_drift_rad_s=b['bias_drift_rad_s'], bias_drift_period_s=b['bias_drift_period_s'],
+        bias_walk_rad_s_sqrt_s=b['bias_walk_rad_s_sqrt_s'],
+    )
     return from_sim(f'simulated {opts.long_run_s / 3600:g} h', sim)
 
 
