@@ -594,16 +594,19 @@ def test_magnetic_disturbance_is_flagged_ignored_and_cleared_when_the_field_retu
     used_clean, disturbed_clean, q_clean = _flags_per_sample(QuaternionCcf(), d, d.mag)
     assert not disturbed[t < 20.0].any() and used[t < 20.0].all()
     assert disturbed[bad].all() and not used[bad].any()
-    # From the first sample of the normal field on, the flags are those of the undisturbed run (which rejects a
-    # few samples of its own: the dip is measured against an accelerometer that sees linear acceleration).
-    after = t >= 30.0
+    # The field came back, but its world direction jumped twice (30° and back) within seconds: the consistency check
+    # holds it off until the jumps have left its band-pass (8 s), then the flags are those of the undisturbed run
+    # (which rejects a few samples of its own: the dip is measured against an accelerometer that sees linear
+    # acceleration). Measured: the last difference 8.8 s after the field returned.
+    after = t >= 30.0 + 10.5
     np.testing.assert_array_equal(disturbed[after], disturbed_clean[after])
     np.testing.assert_array_equal(used[after], used_clean[after])
     assert used[after].mean() > 0.99
     # Meanwhile the heading went on with the gyro alone: close to the undisturbed run.
     from ccf_ros.core.metrics import error_angles
 
-    assert np.degrees(np.abs(error_angles(q, q_clean)[1][bad])).max() < 0.67  # measured 0.557
+    assert np.degrees(np.abs(error_angles(q, q_clean)[1][bad])).max() < 0.67  # measured 0.554
+    assert np.degrees(np.abs(error_angles(q, q_clean)[1][t >= 30.0])).max() < 0.87  # measured 0.721
 
 
 def test_a_new_field_steady_for_mag_reaccept_s_becomes_the_reference():

@@ -101,6 +101,21 @@ _BLOCK_DUE_S = BIAS_UPDATE_PERIOD_S * (1.0 - 1e-6)
 #: The NCF's bias observations are used only within this many standard deviations of what the bias uncertainty and
 #: the attitude references' own errors (incl_sigma_rad, heading_sigma_rad, over tau_ncf_s) explain (squared).
 _GATE2 = 3.0**2
+#: The field's world direction (through the attitude) is band-passed between these time constants, s, to tell a
+#: field that stays put from one that changes as the sensor moves (see QuaternionCcf._mag_consistency): the first
+#: averages the magnetometer's noise and the wobble its lag gives during hand motion (0.5 Hz and up), the second is
+#: the time over which a robot or a hand carries the sensor across a field's structure.
+MAG_BAND_S = (1.0, 8.0)
+#: ... and its squared deviation low-passed over this, s.
+MAG_SCORE_S = 2.0
+#: The field's wander (band-passed RMS) in units of half ``mag_consistency_rad`` (sigma0) at which it no longer steers
+#: heading at all; below, the heading blend's time constant grows as wander / sigma0 (a noisier heading reference).
+MAG_REJECT_SIGMAS = 4.0
+_REJECT2 = MAG_REJECT_SIGMAS**2
+#: A new field becomes the reference only after the body turned by this much (rad, the gyro's angle) while it was
+#: timed: without turning, a field carried by the body (a magnet or motor on the robot) cannot be told from one that
+#: is fixed in the world.
+NEW_FIELD_TURN_RAD = math.pi / 2
 #: cos²(dip) is floored at this when the heading observations' noise is scaled by 1/cos²(dip) (near a magnetic pole
 #: the horizontal field, and so heading, is lost in the tilt error).
 _COS2_DIP_MIN = 0.05
@@ -145,6 +160,11 @@ class CcfParams(CommonParams):
             first sample alone. One sample is a lottery: a MEMS magnetometer's norm scatters by ~1.5 % per sample,
             a third of the 5 % tolerance. The mean weights the samples linearly in time, because after an
             initialisation while moving the tilt, and so the dip, converges like 1/t. Default 5.
+        mag_consistency_rad: the field's direction in the world (seen through the gyro-carried attitude) may move
+            this much (RMS of its band-pass between 1 and 8 s) before the field is taken as one that changes with
+            position or time and stops steering heading; 0: no such check. A homogeneous field stays put however
+            the body turns; the attitude's own errors move it by about ``incl_sigma_rad`` times
+            ``sqrt(1 + tan²(dip))``, ~1° at 60° dip, and this is twice that. Default 2°.
         incl_sigma_rad: reported standard deviation of roll and of pitch while the accelerometer corrects them, rad
             (typical MEMS calibration/alignment error plus residual linear acceleration). Default 0.5°.
         heading_sigma_rad: reported heading standard deviation while the magnetometer corrects it, rad (residual
@@ -176,6 +196,7 @@ class CcfParams(CommonParams):
     mag_dip_tol_rad: float = 5.0 * _DEG
     mag_reaccept_s: float = 20.0
     mag_ref_learn_s: float = 5.0
+    mag_consistency_rad: float = 2.0 * _DEG
     incl_sigma_rad: float = 0.5 * _DEG
     heading_sigma_rad: float = 1.7 * _DEG
     gyro_arw_rad_sqrt_s: float = 3e-4
@@ -193,6 +214,7 @@ class CcfParams(CommonParams):
         ):
             check_positive(name, getattr(self, name))
         check_range('mag_ref_learn_s', self.mag_ref_learn_s, 0.0, 3600.0)
+        check_range('mag_consistency_rad', self.mag_consistency_rad, 0.0, math.pi)
         check_range('mag_dip_tol_rad', self.mag_dip_tol_rad, 0.0, math.pi)
         for name in ('motion_bias', 'rest_bias'):
             if not isinstance(getattr(self, name), bool):
@@ -243,6 +265,10 @@ class _Coefficients:
     rest_bias: bool
     keep_incl: float
     keep_head: float
+    r_head: float
+    k_band1: float
+    k_band2: float
+    k_score: float
     sigma_init: float
     var_arw: float
 
@@ -279,6 +305,12 @@ class _Coefficients:
             # Drift variances decay with the blends' (combined) time constants once corrected again.
             keep_incl=math.exp(-2.0 * dt / (p.tau_acc_s + p.tau_acc_lp_s)),
             keep_head=math.exp(-2.0 * dt / p.tau_mag_s),
+            # A field sample's heading variance for the re-acquisition gain, rad²: heading_sigma² once per tau_mag_s
+            # (its errors are the field's, correlated over the blend's memory, not per sample).
+            r_head=p.heading_sigma_rad**2 * p.tau_mag_s / dt,
+            k_band1=-math.expm1(-dt / MAG_BAND_S[0]),
+            k_band2=-math.expm1(-dt / MAG_BAND_S[1]),
+            k_score=-math.expm1(-dt / MAG_SCORE_S),
             sigma_init=p.bias_sigma_init_rad_s,
             var_arw=p.gyro_arw_rad_sqrt_s**2 * dt,
         )
@@ -306,6 +338,11 @@ class _BlockCoefficients:
     gate_tilt: float
     gate_head: float
     gate_p: float
+    k_band1: float
+    k_band2: float
+    k_score: float
+    wander_var: float
+    drift_var: float
 
     @classmethod
     def of(cls, p: CcfParams, key: int) -> _BlockCoefficients:
@@ -335,6 +372,17 @@ class _BlockCoefficients:
             gate_head=(p.heading_sigma_rad / p.tau_ncf_s) ** 2,
             # The gate holds once the bias's variance along the observation is below a quarter of the initial one.
             gate_p=0.25 * p.bias_sigma_init_rad_s**2,
+            k_band1=-math.expm1(-t / MAG_BAND_S[0]),
+            k_band2=-math.expm1(-t / MAG_BAND_S[1]),
+            k_score=-math.expm1(-t / MAG_SCORE_S),
+            # Hysteresis: inconsistent above the threshold, consistent again below half of it (squared, unit vectors'
+            # chord ~ angle); a zero threshold switches the check off.
+            # The band-passed wander of a homogeneous field's direction seen through a moving attitude (half the
+            # threshold, squared; inf: the check is off) ...
+            wander_var=(0.5 * p.mag_consistency_rad) ** 2 if p.mag_consistency_rad > 0.0 else math.inf,
+            # ... plus the attitude's drift from a bias error of bias_sigma_init over the band-pass's long time
+            # constant (a ramp of rate r shows as r * MAG_BAND_S[1]), scaled by the bias's relative variance.
+            drift_var=(2.0 * p.bias_sigma_init_rad_s * MAG_BAND_S[1]) ** 2,
         )
 
 
@@ -399,9 +447,32 @@ class QuaternionCcf(OrientationFilter):
 
     name = 'ccf'
     __slots__ = (
-        '_bcoef', '_bcoef_cache', '_coef', '_coef_cache', '_gyro_lp', '_heading_known', '_mag_bounds', '_mag_candidate', '_mag_have_ref',
-        '_mag_learn_n', '_mag_learn_s', '_mag_new_s', '_mag_ref', '_mag_rejected_t', '_model', '_n_init', '_p_bias',
-        '_rest_s', '_u_bias', '_var_head', '_var_incl', '_x',
+        '_bcoef',
+        '_bcoef_cache',
+        '_coef',
+        '_coef_cache',
+        '_gyro_lp',
+        '_heading_known',
+        '_mag_band',
+        '_mag_band_t',
+        '_mag_bounds',
+        '_mag_candidate',
+        '_mag_consistent',
+        '_mag_have_ref',
+        '_mag_learn_n',
+        '_mag_learn_s',
+        '_mag_new_s',
+        '_mag_ref',
+        '_mag_rejected_t',
+        '_mag_weight',
+        '_model',
+        '_n_init',
+        '_p_bias',
+        '_rest_s',
+        '_u_bias',
+        '_var_head',
+        '_var_incl',
+        '_x',
     )
     params: CcfParams
 
@@ -412,8 +483,10 @@ class QuaternionCcf(OrientationFilter):
         # The per-sample state in one tuple (one load and one store per sample): the gyro bias b (rad/s, body), the
         # filtered gravity g_lp (m/s², body), the NCF's offset dn (rad, world) and g_lp's rate (m/s³, body), 3
         # values each; then, for the NCF bias update's current block, the NCF heading errors summed (rad) and how
-        # many, the time it spans (s) and its samples.
-        self._x = (0.0, 0.0, 0.0, 0.0, 0.0, GRAVITY_M_S2, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0, 0.0, 0)
+        # many, the time it spans (s) and its samples; the block's magnetometer samples in world coordinates summed
+        # (east, north, up, in the sensor's unit), how many, and the heading corrections applied meanwhile (rad).
+        self._x = (0.0, 0.0, 0.0, 0.0, 0.0, GRAVITY_M_S2, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0, 0.0, 0,
+                   0.0, 0.0, 0.0, 0, 0.0, 0.0, 0.0)
         self._coef_cache: dict[int, _Coefficients] = {}
         self._bcoef_cache: dict[int, _BlockCoefficients] = {}
         self._coef = self._coefficients(0.01)
@@ -438,13 +511,20 @@ class QuaternionCcf(OrientationFilter):
         self._mag_ref = (0.0, 0.0)
         # Bounds that accept nothing, so that the first sample goes through _mag_rejected and sets the reference.
         self._mag_bounds = (math.inf, -math.inf, 2.0, -2.0)
-        self._mag_candidate = (0.0, 0.0, 0.0)
+        self._mag_candidate = (0.0, 0.0, 0.0, 0.0, (0.0,) * 7)
         self._mag_have_ref = False
         self._mag_new_s = 0.0
         self._mag_rejected_t = -math.inf
         self._mag_learn_s = 0.0
         self._mag_learn_n = 0
         self.mag_disturbed = False
+        # The field's world direction band-passed (two unit-vector low-passes and the squared deviation's low-pass;
+        # None: seeded by the next block), and the verdict.
+        self._mag_band: tuple[float, ...] | None = None
+        self._mag_band_t = -math.inf
+        self._mag_consistent = True
+        # The heading blend's gain relative to tau_mag_s's (1: the field is as steady as a homogeneous one).
+        self._mag_weight = 1.0
 
     def _bounds(self, norm: float, sin_dip: float) -> tuple[float, float, float, float]:
         """Acceptance bounds (squared norm, sin(dip)) around a field of ``norm`` and dip ``asin(sin_dip)``.
@@ -477,7 +557,7 @@ class QuaternionCcf(OrientationFilter):
             self._mag_bounds = (math.inf, -math.inf, 2.0, -2.0)
         else:
             self._mag_bounds = self._bounds(norm, sin_dip)
-        self._mag_candidate = (0.0, 0.0, 0.0)
+        self._mag_candidate = (0.0, 0.0, 0.0, 0.0, (0.0,) * 7)
 
     def _coefficients(self, dt: float) -> _Coefficients:
         """The per-sample coefficients for a sample period of ``dt`` s (> 0)."""
@@ -523,7 +603,7 @@ class QuaternionCcf(OrientationFilter):
                 self._heading_known = False
         self._q = q
         bias = self._x[:3]
-        self._x = (*bias, ax, ay, az, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0, 0.0, 0)
+        self._x = (*bias, ax, ay, az, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0, 0.0, 0, 0.0, 0.0, 0.0, 0, 0.0, 0.0, 0.0)
         self._gyro_lp = bias
         self._rest_s = 0.0
         self.at_rest = False
@@ -556,7 +636,8 @@ class QuaternionCcf(OrientationFilter):
         if not c.dt_lo <= dt <= c.dt_hi:
             c = self._coef = self._coefficients(dt)
         qw, qx, qy, qz = self._q
-        bx, by, bz, fx, fy, fz, dnx, dny, dnz, fdx, fdy, fdz, h_sum, h_n, blk_t, blk_n = self._x
+        (bx, by, bz, fx, fy, fz, dnx, dny, dnz, fdx, fdy, fdz, h_sum, h_n, blk_t, blk_n,
+         we, wn, wu, w_n, scx, scy, scz) = self._x
         # Rows of the body->world rotation matrix: world east (r0), north (r1) and up (v) in body coordinates.
         # (Twice the products: x2 = 2 qx etc. saves the factor 2 of every matrix element.)
         x2, y2, z2 = qx + qx, qy + qy, qz + qz
@@ -593,7 +674,7 @@ class QuaternionCcf(OrientationFilter):
         nx = ex - dnx * r0x - dny * r1x
         ny = ey - dnx * r0y - dny * r1y
         nz = ez - dnx * r0z - dny * r1z
-        hn = kd = 0.0
+        hn = kd = kdn = 0.0
         if mag_n2:
             # The sample is a mean over the step, like the accelerometer's: the field in the frame of mid-interval.
             # The attitude here is the step's start, so carry it back half the gyro step, m' = m + p x m.
@@ -601,18 +682,50 @@ class QuaternionCcf(OrientationFilter):
             py = (gy - by) * 0.5 * dt
             pz = (gz - bz) * 0.5 * dt
             mx, my, mz = mx + (py * mz - pz * my), my + (pz * mx - px * mz), mz + (px * my - py * mx)
+            # The field in world coordinates through the attitude: east, north, up.
+            me = r0x * mx + r0y * my + r0z * mz
+            mn = r1x * mx + r1y * my + r1z * mz
+            mu = vx * mx + vy * my + vz * mz
             norm = sqrt(mag_n2)
-            sin_dip = (vx * mx + vy * my + vz * mz) / norm
+            sin_dip = mu / norm
             lo2, hi2, lo_dip, hi_dip = self._mag_bounds
+            # Whether the field stays put in the world is judged per block on every sample, those the norm and dip
+            # gate rejects too: a field that turns as the sensor moves must not look new (and steady) each time it
+            # passes the gate again somewhere else.
+            we += me
+            wn += mn
+            wu += mu
+            w_n += 1
             if (lo2 <= mag_n2 <= hi2 and lo_dip <= sin_dip <= hi_dip) or self._mag_rejected(
-                dt, mag_n2, norm, sin_dip
+                dt, norm, sin_dip, me, mn, mu, gx - bx, gy - by, gz - bz
             ):
+                mag_ok = self._mag_consistent
+            else:
+                mag_ok = False
+            if mag_ok:
                 if self.mag_disturbed:
                     self.mag_disturbed = False
                 # Horizontal field in the world frame must point to +y (north in ENU). The correction is a rotation
                 # about world up (v in body coordinates): heading only, never tilt.
-                d = atan2(r0x * mx + r0y * my + r0z * mz, r1x * mx + r1y * my + r1z * mz)
-                kd = k_mag * d
+                d = atan2(me, mn)
+                kh = k_mag * self._mag_weight
+                # The blend's own share of the correction: the NCF's heading moves with the rest (below).
+                kdn = kh * d
+                vh = self._var_head
+                if vh:
+                    # The heading has drifted (or was re-set by a new field) since it was last corrected: the blend
+                    # takes a field sample with the Kalman gain of that uncertainty against the field's own
+                    # (heading_sigma² per tau_mag_s of samples), so that it re-acquires within a second, not tau_mag_s.
+                    kv = vh / (vh + c.r_head)
+                    if kv > kh:
+                        kh = kv
+                        vh *= 1.0 - kv
+                    else:
+                        vh *= c.keep_head
+                    # Exactly zero again once negligible, so the common path skips this.
+                    self._var_head = vh if vh > 1e-14 else 0.0
+                    self._heading_known = True
+                kd = kh * d
                 # NCF heading error (its heading is the LCF's turned by dnz about world up). Its own heading takes
                 # all of it; the bias estimate only what is within ±_HEAD_ERR_MAX while the two stages' headings
                 # agree within it too. A larger error, or a larger dnz, means the heading has not converged yet (a
@@ -628,12 +741,8 @@ class QuaternionCcf(OrientationFilter):
                 cx += kd * vx
                 cy += kd * vy
                 cz += kd * vz
-                vh = self._var_head
-                if vh:
-                    # Exactly zero again once negligible, so the common path skips this.
-                    self._var_head = vh * c.keep_head if vh > 1e-14 else 0.0
-                    self._heading_known = True
             else:
+                self.mag_disturbed = True
                 self._var_head = _drift(self._var_head, c.sigma_init * sqrt(self._u_bias) * dt, c.var_arw)
         else:
             self._var_head = _drift(self._var_head, c.sigma_init * sqrt(self._u_bias) * dt, c.var_arw)
@@ -646,6 +755,10 @@ class QuaternionCcf(OrientationFilter):
         # NCF integral: a Kalman update of the bias once the block of samples spans BIAS_UPDATE_PERIOD_S.
         blk_t += dt
         blk_n += 1
+        # The LCF's corrections this block (rad, body): they turn the field seen through the attitude.
+        scx += cx
+        scy += cy
+        scz += cz
         if blk_t >= _BLOCK_DUE_S:
             bx, by, bz = self._ncf_update(
                 blk_t, blk_n, bx, by, bz, r0x, r0y, r0z, r1x, r1y, r1z, vx, vy, vz, nx, ny, nz, h_sum, h_n,
@@ -654,8 +767,13 @@ class QuaternionCcf(OrientationFilter):
                 # rest, where the low-passed gyro below is far more informative; not without an accelerometer.
                 not (ni or self.at_rest) and acc_n2 != 0.0,
             )
-            blk_t = h_sum = 0.0
-            blk_n = h_n = 0
+            if w_n and not ni:  # (not during the start-up: the attitude itself is still being found)
+                self._mag_consistency(
+                    we, wn, wu,
+                    r0x * scx + r0y * scy + r0z * scz, r1x * scx + r1y * scy + r1z * scz, vx * scx + vy * scy + vz * scz,
+                )
+            blk_t = h_sum = we = wn = wu = scx = scy = scz = 0.0
+            blk_n = h_n = w_n = 0
         if c.rest_bias and acc_n2:
             # Rest: the accelerometer within rest_acc_m_s2 of the filtered gravity (tested first: it fails first
             # while moving, and then nothing else is needed), and the gyro within rest_gyro_rad_s of its low-pass.
@@ -793,8 +911,9 @@ class QuaternionCcf(OrientationFilter):
             bx, by, bz, fx, fy, fz,
             dnx + r0x * ux + r0y * uy + r0z * uz,
             dny + r1x * ux + r1y * uy + r1z * uz,
-            dnz + k * hn - kd,
-            fdx, fdy, fdz, h_sum, h_n, blk_t, blk_n,
+            # (A re-acquisition's share, kd - kdn, turns both stages: it is no drift of the NCF's.)
+            dnz + k * hn - kdn,
+            fdx, fdy, fdz, h_sum, h_n, blk_t, blk_n, we, wn, wu, w_n, scx, scy, scz,
         )
 
     def _ncf_update(  # the arguments are the step's locals: one call per block, no attribute traffic
@@ -883,7 +1002,9 @@ class QuaternionCcf(OrientationFilter):
             if h_n:
                 # The block's mean heading error; its variance grows as fewer of the block's samples qualified.
                 sd = self._mag_ref[1]
-                rows.append((*mh, k * h_sum / h_n, r * n / (h_n * max(1.0 - sd * sd, _COS2_DIP_MIN)), c.gate_head))
+                wgt = self._mag_weight
+                rows.append((*mh, k * h_sum / h_n, r * n / (h_n * wgt * wgt * max(1.0 - sd * sd, _COS2_DIP_MIN)),
+                             c.gate_head))
             for h0, h1, h2, hb, y, ri, floor2 in rows:
                 nu = y + hb - (h0 * bx + h1 * by + h2 * bz)
                 ph0 = p00 * h0 + p01 * h1 + p02 * h2
@@ -933,12 +1054,69 @@ class QuaternionCcf(OrientationFilter):
         self._u_bias = (p00 + p11 + p22) / (3.0 * c.p_init)
         return bx, by, bz
 
-    def _mag_rejected(self, dt: float, mag_n2: float, norm: float, sin_dip: float) -> bool:
+    def _mag_consistency(self, we: float, wn: float, wu: float, ce: float, cn: float, cu: float) -> None:
+        """Whether the field stays put in the world, once per block of ``t`` s: its samples summed in world
+        coordinates through the attitude (``we, wn, wu``: east, north, up, sensor unit), and the heading corrections
+        the LCF applied meanwhile (``ce, cn, cu``: a rotation vector in world coordinates, rad; they turn the attitude,
+        and so the field seen through it).
+
+        A homogeneous field keeps its world direction however the body turns; the attitude carried by the gyro is
+        good to about a degree over seconds. A field that varies with position (a structure near the workspace, a
+        magnet passed by), one carried by the body (a magnet or motor on it: it turns with the body) or one that
+        changes in time moves. The direction's band-pass between ``MAG_BAND_S`` (its deviation RMS over
+        ``MAG_SCORE_S``) against ``mag_consistency_rad`` (with hysteresis: half of it to become consistent again)
+        decides whether the field may steer heading (and the bias estimate) at all; agreement of norm and dip with
+        a reference cannot see a field that turns.
+        """
+        c = self._bcoef
+        n = sqrt(we * we + wn * wn + wu * wu)
+        if not n:
+            return
+        ue, un, uu = we / n, wn / n, wu / n
+        band = self._mag_band
+        t_now = self._t_last
+        gap = t_now - self._mag_band_t > MAG_BAND_S[0]
+        self._mag_band_t = t_now
+        if band is None or gap:
+            # First, or after the field was rejected for a while (the gyro drifted meanwhile): the direction's
+            # filters start again from here; the wander score keeps its memory.
+            self._mag_band = (ue, un, uu, ue, un, uu, 0.0 if band is None else band[6])
+            return
+        ae, an, au, be, bn, bu, s2 = band
+        # The LCF's corrections turned the field seen through the attitude by (ce, cn, cu): turn the filters' states
+        # with them (first order), so that only the field's own motion shows.
+        ae, an, au = ae + (cn * au - cu * an), an + (cu * ae - ce * au), au + (ce * an - cn * ae)
+        be, bn, bu = be + (cn * bu - cu * bn), bn + (cu * be - ce * bu), bu + (ce * bn - cn * be)
+        k1, k2 = c.k_band1, c.k_band2
+        ae += k1 * (ue - ae)
+        an += k1 * (un - an)
+        au += k1 * (uu - au)
+        be += k2 * (ae - be)
+        bn += k2 * (an - bn)
+        bu += k2 * (au - bu)
+        de, dn_, du = ae - be, an - bn, au - bu
+        s2 += c.k_score * (de * de + dn_ * dn_ + du * du - s2)
+        self._mag_band = (ae, an, au, be, bn, bu, s2)
+        # The heading reference is as noisy as the field wanders: the blend's time constant (and the bias estimate's
+        # heading noise) grows with the wander beyond a homogeneous field's, which includes the drift an unknown
+        # bias gives the attitude.
+        r2 = s2 / (c.wander_var + c.drift_var * self._u_bias)
+        self._mag_weight = 1.0 / sqrt(r2) if r2 > 1.0 else 1.0
+        if self._mag_consistent:
+            if r2 > _REJECT2:
+                self._mag_consistent = False
+        elif r2 < 0.25 * _REJECT2:
+            self._mag_consistent = True
+
+    def _mag_rejected(self, dt: float, norm: float, sin_dip: float, me: float, mn: float, mu: float, wx: float,
+                      wy: float, wz: float) -> bool:
         """Book-keeping for a magnetometer sample outside the acceptance bounds (rare path).
 
         Returns True if the sample is to be used after all: it began the reference (first usable sample after a
         (re)initialisation), the reference is being learnt (the ``mag_ref_learn_s`` after that), or a new field
-        stayed steady long enough to become the reference.
+        stayed steady long enough, and put in the world while the body turned by :data:`NEW_FIELD_TURN_RAD`, to
+        become the reference. ``me, mn, mu``: the sample in world coordinates (east, north, up) through the attitude;
+        ``wx, wy, wz``: the bias-corrected rate, rad/s.
         """
         if not self._mag_have_ref:
             self._set_mag_reference(norm, sin_dip)
@@ -960,8 +1138,11 @@ class QuaternionCcf(OrientationFilter):
         # samples or no magnetometer since the last rejection). A field that agrees for mag_reaccept_s net becomes
         # the reference (with a fraction f of outliers after mag_reaccept_s / (1 - f (1 + _LEAK))); single
         # outliers (noise, a tilt error while moving) do not restart it.
-        cn, cs, n = self._mag_candidate  # n: a float count (0.0: no candidate yet)
+        # n: a float count (0.0: no candidate yet); turn: rad turned while timed; band: the candidate's world
+        # direction band-passed as in _mag_consistency (sample by sample here: no heading corrections meanwhile).
+        cn, cs, n, turn, band = self._mag_candidate
         p = self.params
+        c = self._coef
         t = self._t_last
         timer = self._mag_new_s - _LEAK * (t - self._mag_rejected_t - dt)
         self._mag_rejected_t = t
@@ -971,19 +1152,43 @@ class QuaternionCcf(OrientationFilter):
             n += 1.0
             cn += (norm - cn) / n
             cs += (sin_dip - cs) / n
-            self._mag_candidate = (cn, cs, n)
-            timer += dt
-            if timer > p.mag_reaccept_s:
+            ae, an, au, be, bn, bu, s2 = band
+            k1, k2 = c.k_band1, c.k_band2
+            ae += k1 * (me / norm - ae)
+            an += k1 * (mn / norm - an)
+            au += k1 * (mu / norm - au)
+            be += k2 * (ae - be)
+            bn += k2 * (an - bn)
+            bu += k2 * (au - bu)
+            de, dn_, du = ae - be, an - bn, au - bu
+            s2 += c.k_score * (de * de + dn_ * dn_ + du * du - s2)
+            band = (ae, an, au, be, bn, bu, s2)
+            # Timed only while the field stays put in the world (a candidate that moves is no new normal).
+            bc = self._bcoef
+            if s2 < 0.25 * _REJECT2 * (bc.wander_var + bc.drift_var * self._u_bias):
+                timer += dt
+                turn += sqrt(wx * wx + wy * wy + wz * wz) * dt
+            self._mag_candidate = (cn, cs, n, turn, band)
+            if timer > p.mag_reaccept_s and turn >= NEW_FIELD_TURN_RAD:
                 # A different field that stayed steady this long is the new normal (moved robot, new mounting). Its
                 # mean over the agreeing samples is the reference at once: no learning window, which would average
                 # the outliers back in with the gate open.
                 self._set_mag_reference(cn, cs, learn=False)
+                # Its verdict carries over: it stayed put while timed.
+                self._mag_band = band
+                self._mag_band_t = t
+                self._mag_consistent = True
+                self._mag_weight = 1.0
+                # The heading kept so far came from the old field (or the gyro since): it is re-acquired from the new
+                # one, as at a start.
+                self._var_head = max(self._var_head, (0.5 * math.pi) ** 2)
                 return True
         else:
             timer -= _LEAK * dt
         if timer <= 0.0:
             # Not steady: start timing a new candidate field from this sample.
-            self._mag_candidate = (norm, sin_dip, 1.0)
+            u = (me / norm, mn / norm, mu / norm)
+            self._mag_candidate = (norm, sin_dip, 1.0, 0.0, (*u, *u, 0.0))
             timer = 0.0
         self._mag_new_s = timer
         return False
