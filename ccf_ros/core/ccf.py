@@ -116,6 +116,13 @@ _REJECT2 = MAG_REJECT_SIGMAS**2
 #: timed: without turning, a field carried by the body (a magnet or motor on the robot) cannot be told from one that
 #: is fixed in the world.
 NEW_FIELD_TURN_RAD = math.pi / 2
+#: Once the bias was seen at rest, a steady gyro rate differing from the estimate by more than this (rad/s, plus 3
+#: sigma of the estimate) is a slow turn, not a rest: a MEMS gyro's bias moves by ~0.1°/s between rests minutes apart
+#: (bias instability and temperature); a tracked robot turning in place at 1°/s does not look like a rest.
+REST_BIAS_TOL_RAD_S = math.radians(0.3)
+_REST_TOL2 = REST_BIAS_TOL_RAD_S**2
+#: ... unless it stays steady this long, s: a rest learnt wrongly (a slow turn first) must not block later rests.
+REST_RELEARN_S = 120.0
 #: cos²(dip) is floored at this when the heading observations' noise is scaled by 1/cos²(dip) (near a magnetic pole
 #: the horizontal field, and so heading, is lost in the tilt error).
 _COS2_DIP_MIN = 0.05
@@ -148,7 +155,8 @@ class CcfParams(CommonParams):
         rest_min_s: for at least this long, s. Default 1.5.
         rest_tau_s: time constant of the rest low-pass and of the rest bias update, s. Default 0.5.
         bias_max_rad_s: the bias estimate is clamped to ±this per axis (anti-windup), rad/s; a low-passed rotation
-            faster than this is never taken for rest. Default 2°/s.
+            faster than this is never taken for rest. Default 15°/s (consumer MEMS gyros' offsets reach 10°/s; a
+            slow turn is told from a bias by :meth:`QuaternionCcf._rest_agrees`, not by its size).
         mag_norm_tol: relative deviation of the magnetometer norm from its reference that counts as disturbed.
             Default 0.05 (a calibrated magnetometer stays well within it).
         mag_dip_tol_rad: deviation of the magnetic dip angle that counts as disturbed, rad. Default 5°.
@@ -191,7 +199,7 @@ class CcfParams(CommonParams):
     rest_acc_m_s2: float = 0.5
     rest_min_s: float = 1.5
     rest_tau_s: float = 0.5
-    bias_max_rad_s: float = 2.0 * _DEG
+    bias_max_rad_s: float = 15.0 * _DEG
     mag_norm_tol: float = 0.05
     mag_dip_tol_rad: float = 5.0 * _DEG
     mag_reaccept_s: float = 20.0
@@ -447,8 +455,10 @@ class QuaternionCcf(OrientationFilter):
 
     name = 'ccf'
     __slots__ = (
+        '_acc_lp',
         '_bcoef',
         '_bcoef_cache',
+        '_bias_rested',
         '_coef',
         '_coef_cache',
         '_gyro_lp',
@@ -492,6 +502,7 @@ class QuaternionCcf(OrientationFilter):
         self._coef = self._coefficients(0.01)
         self._bcoef = self._block_coefficients(BIAS_UPDATE_PERIOD_S)
         self._gyro_lp = (0.0, 0.0, 0.0)
+        self._acc_lp = (0.0, 0.0, 0.0)
         self._rest_s = 0.0
         self._n_init = 0
         self._forget_mag_reference()
@@ -503,6 +514,8 @@ class QuaternionCcf(OrientationFilter):
         self._p_bias = (p0, 0.0, 0.0, p0, 0.0, p0)
         # Mean bias variance relative to bias_sigma_init² (for the drift variances): 1 = nothing learnt yet.
         self._u_bias = 1.0
+        # Whether the bias was seen at rest since the start (then a steady rate must agree with it to be a rest).
+        self._bias_rested = False
         # The NCF observation model's low-pass states (None: seed at the next bias update).
         self._model: tuple[tuple[float, ...], ...] | None = None
 
@@ -779,11 +792,18 @@ class QuaternionCcf(OrientationFilter):
             # while moving, and then nothing else is needed), and the gyro within rest_gyro_rad_s of its low-pass.
             # A sample without a usable accelerometer neither extends nor ends a rest (one corrupted message in a
             # hundred would otherwise never let a rest last rest_min_s).
-            dax = ax - fx
-            day = ay - fy
-            daz = az - fz
+            # The accelerometer is compared with its own low-pass in the body, not with the gravity the gyro carries:
+            # with an unknown offset of several °/s the carried gravity turns away while the IMU lies still.
+            if self._rest_s:
+                alx, aly, alz = self._acc_lp
+            else:
+                alx, aly, alz = ax, ay, az
+            dax = ax - alx
+            day = ay - aly
+            daz = az - alz
             if dax * dax + day * day + daz * daz < c.rest_acc2:
                 k = c.k_rest
+                self._acc_lp = (alx + k * dax, aly + k * day, alz + k * daz)
                 if self._rest_s:
                     glx, gly, glz = self._gyro_lp
                 else:
@@ -808,19 +828,22 @@ class QuaternionCcf(OrientationFilter):
                 ):
                     # 1e-12 s keeps the timer non-zero (the low-pass continues) from the first sample on.
                     rest_s = self._rest_s = self._rest_s + dt + 1e-12
-                    if rest_s >= c.rest_min_s:
+                    if rest_s >= c.rest_min_s and self._rest_agrees(glx - bx, gly - by, glz - bz):
                         # At rest the low-passed gyro *is* the bias: pull the estimate there (its covariance relaxes
                         # to bias_sigma_rest² in _ncf_update).
                         self.at_rest = True
                         bx += k * (glx - bx)
                         by += k * (gly - by)
                         bz += k * (glz - bz)
+                    elif self.at_rest:
+                        # Steady, but no longer at the bias seen: a slow turn began.
+                        self.at_rest = False
                 elif self._rest_s:
                     self._rest_s = 0.0
-                    self.at_rest = False
+                    self._end_rest()
             elif self._rest_s:
                 self._rest_s = 0.0
-                self.at_rest = False
+                self._end_rest()
         # Anti-windup: the estimate never leaves ±bias_max per axis (tested per axis only when the norm says it may).
         if bx * bx + by * by + bz * bz > c.bias_max2:
             m = c.bias_max
@@ -1053,6 +1076,30 @@ class QuaternionCcf(OrientationFilter):
         self._p_bias = (p00, p01, p02, p11, p12, p22)
         self._u_bias = (p00 + p11 + p22) / (3.0 * c.p_init)
         return bx, by, bz
+
+    def _end_rest(self) -> None:
+        """Motion again: a bias was seen at rest if the rest was one (from now on a steady rate must agree with it)."""
+        if self.at_rest:
+            self.at_rest = False
+            self._bias_rested = True
+
+    def _rest_agrees(self, ex: float, ey: float, ez: float) -> bool:
+        """Whether a steady gyro (low-passed minus the bias estimate: ``ex, ey, ez``, rad/s) may be taken for rest.
+
+        A bias does not jump; a rotation does begin. Before the bias was first seen at rest any steady rate within
+        ``bias_max_rad_s`` is a bias (a consumer MEMS gyro's offset can be 10°/s); afterwards a steady rate beyond
+        what the estimate's uncertainty and a bias's instability between rests (:data:`REST_BIAS_TOL_RAD_S`)
+        explain is a slow turn (a tracked robot turning in place), unless it lasts :data:`REST_RELEARN_S`.
+        """
+        if not self._bias_rested:
+            # The first rest: once the estimate has converged on it (eight of its time constants), it was seen.
+            if self._rest_s >= self.params.rest_min_s + 8.0 * self.params.rest_tau_s:
+                self._bias_rested = True
+            return True
+        if self._rest_s >= REST_RELEARN_S:
+            return True
+        p00, _, _, p11, _, p22 = self._p_bias
+        return ex * ex + ey * ey + ez * ez < _REST_TOL2 + 9.0 * (p00 + p11 + p22)
 
     def _mag_consistency(self, we: float, wn: float, wu: float, ce: float, cn: float, cu: float) -> None:
         """Whether the field stays put in the world, once per block of ``t`` s: its samples summed in world
