@@ -37,6 +37,8 @@ PARAMETER_RANGES: dict[str, tuple[float, float]] = {
     'ki': (0.0, 1e6),
     'mag_norm_tol': (0.0, 10.0),
     'mag_dip_tol_rad': (0.0, math.pi),
+    'mag_consistency_rad': (0.0, math.pi),
+    'gyro_range_rad_s': (0.0, 1000.0),
     'constant_dt': (0.0, 10.0),
     'orientation_stddev': (0.0, math.pi),
     'gyro_bias_rate_hz': (0.0, 100000.0),

@@ -85,6 +85,7 @@ DESCRIPTIONS: dict[str, str] = {
     'mag_reaccept_s': 'quaternion: a different but steady field becomes the new reference after this long, s',
     'mag_ref_learn_s': 'quaternion: the reference field of the disturbance gate is the mean over this long after it is set, s',
     'mag_consistency_rad': 'quaternion: a field whose world direction moves more than this (band-passed RMS) does not steer heading, rad; 0 = off',
+    'gyro_range_rad_s': 'quaternion: the gyro\'s full-scale range, rad/s (0 = unknown); samples at it are counted and the attitude recovers from the accelerometer/magnetometer fast',
     'incl_sigma_rad': 'quaternion: reported inclination std while the accelerometer corrects it, rad',
     'heading_sigma_rad': 'quaternion: reported heading std while the magnetometer corrects it, rad',
     'gyro_arw_rad_sqrt_s': 'quaternion: gyro angle random walk, rad/sqrt(s); grows the reported variance without corrections',

@@ -173,6 +173,11 @@ class CcfParams(CommonParams):
             position or time and stops steering heading; 0: no such check. A homogeneous field stays put however
             the body turns; the attitude's own errors move it by about ``incl_sigma_rad`` times
             ``sqrt(1 + tan²(dip))``, ~1° at 60° dip, and this is twice that. Default 2°.
+        gyro_range_rad_s: the gyro's measurement range (full scale), rad/s; 0: unknown. A sample with an axis at
+            99.8 % of it or beyond is clipped: the rotation it misses is unknown, so the reported variances grow by
+            the range times the step, squared, and the blends with accelerometer and magnetometer restart as running
+            means (as at start-up), which bring the attitude back within a second or so instead of tau_acc_s and
+            tau_mag_s. Counted in :attr:`QuaternionCcf.n_gyro_clipped`. E.g. 2000°/s = 34.9 rad/s. Default 0.
         incl_sigma_rad: reported standard deviation of roll and of pitch while the accelerometer corrects them, rad
             (typical MEMS calibration/alignment error plus residual linear acceleration). Default 0.5°.
         heading_sigma_rad: reported heading standard deviation while the magnetometer corrects it, rad (residual
@@ -205,6 +210,7 @@ class CcfParams(CommonParams):
     mag_reaccept_s: float = 20.0
     mag_ref_learn_s: float = 5.0
     mag_consistency_rad: float = 2.0 * _DEG
+    gyro_range_rad_s: float = 0.0
     incl_sigma_rad: float = 0.5 * _DEG
     heading_sigma_rad: float = 1.7 * _DEG
     gyro_arw_rad_sqrt_s: float = 3e-4
@@ -223,6 +229,7 @@ class CcfParams(CommonParams):
             check_positive(name, getattr(self, name))
         check_range('mag_ref_learn_s', self.mag_ref_learn_s, 0.0, 3600.0)
         check_range('mag_consistency_rad', self.mag_consistency_rad, 0.0, math.pi)
+        check_range('gyro_range_rad_s', self.gyro_range_rad_s, 0.0, 1000.0)
         check_range('mag_dip_tol_rad', self.mag_dip_tol_rad, 0.0, math.pi)
         for name in ('motion_bias', 'rest_bias'):
             if not isinstance(getattr(self, name), bool):
@@ -279,6 +286,8 @@ class _Coefficients:
     k_score: float
     sigma_init: float
     var_arw: float
+    clip: float
+    var_clip: float
 
     @classmethod
     def of(cls, p: CcfParams, key: int) -> _Coefficients:
@@ -321,6 +330,9 @@ class _Coefficients:
             k_score=-math.expm1(-dt / MAG_SCORE_S),
             sigma_init=p.bias_sigma_init_rad_s,
             var_arw=p.gyro_arw_rad_sqrt_s**2 * dt,
+            # (A float compare against inf is all a gyro without a known range costs.)
+            clip=0.998 * p.gyro_range_rad_s if p.gyro_range_rad_s > 0.0 else math.inf,
+            var_clip=(p.gyro_range_rad_s * dt) ** 2,
         )
 
 
@@ -483,6 +495,7 @@ class QuaternionCcf(OrientationFilter):
         '_var_head',
         '_var_incl',
         '_x',
+        'n_gyro_clipped',
     )
     params: CcfParams
 
@@ -516,6 +529,8 @@ class QuaternionCcf(OrientationFilter):
         self._u_bias = 1.0
         # Whether the bias was seen at rest since the start (then a steady rate must agree with it to be a rest).
         self._bias_rested = False
+        #: Gyro samples at gyro_range_rad_s since the start.
+        self.n_gyro_clipped = 0
         # The NCF observation model's low-pass states (None: seed at the next bias update).
         self._model: tuple[tuple[float, ...], ...] | None = None
 
@@ -648,6 +663,9 @@ class QuaternionCcf(OrientationFilter):
         c = self._coef
         if not c.dt_lo <= dt <= c.dt_hi:
             c = self._coef = self._coefficients(dt)
+        clip = c.clip
+        if gx >= clip or gx <= -clip or gy >= clip or gy <= -clip or gz >= clip or gz <= -clip:
+            self._gyro_clipped(c.var_clip)
         qw, qx, qy, qz = self._q
         (bx, by, bz, fx, fy, fz, dnx, dny, dnz, fdx, fdy, fdz, h_sum, h_n, blk_t, blk_n,
          we, wn, wu, w_n, scx, scy, scz) = self._x
@@ -1076,6 +1094,16 @@ class QuaternionCcf(OrientationFilter):
         self._p_bias = (p00, p01, p02, p11, p12, p22)
         self._u_bias = (p00 + p11 + p22) / (3.0 * c.p_init)
         return bx, by, bz
+
+    def _gyro_clipped(self, var_clip: float) -> None:
+        """A gyro sample at its range: the attitude may be off by up to the range times the step (rad, squared:
+        ``var_clip``). Restart the accelerometer's and magnetometer's blends and the gravity low-pass as running
+        means from the next sample on, as at start-up (no bias learnt meanwhile), so that they bring the attitude
+        back fast; x-io Fusion's angular-rate recovery does the same with a fixed gain."""
+        self.n_gyro_clipped += 1
+        self._n_init = 1
+        self._var_incl += var_clip
+        self._var_head += var_clip
 
     def _end_rest(self) -> None:
         """Motion again: a bias was seen at rest if the rest was one (from now on a steady rate must agree with it)."""
