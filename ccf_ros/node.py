@@ -142,7 +142,8 @@ def _descriptor(name: str, default: Any, read_only: bool) -> ParameterDescriptor
     elif isinstance(default, tuple):
         # Dynamic: [1, 0, 0] (integers) is as good as [1.0, 0.0, 0.0]; the node checks the values.
         d.dynamic_typing = True
-        d.additional_constraints = f'{len(default)} numbers'
+        d.additional_constraints = ('[roll, pitch, yaw] (rad) or [x, y, z, w]' if name.endswith('_rotation')
+                                    else f'{len(default)} numbers')
     elif isinstance(default, float):
         # Dynamic: rclpy refuses an integer for a double-typed parameter; the node accepts and converts it.
         d.dynamic_typing = True

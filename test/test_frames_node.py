@@ -90,3 +90,21 @@ def test_node_writes_the_bias_file_on_shutdown_and_starts_from_it(context, input
         assert not node.engine.warnings
     finally:
         h.close()
+
+
+def test_node_refuses_a_bad_mount_at_start_and_while_running(context):
+    from rclpy.parameter import Parameter
+
+    from ccf_ros.errors import ParameterError
+    from ccf_ros.node import CcfNode
+
+    with pytest.raises(ParameterError, match='mount_rotation: the quaternion'):
+        CcfNode(context=context, parameter_overrides=[Parameter('mount_rotation', value=[0.0, 0.0, 0.5, 0.5])])
+    node = CcfNode(context=context)
+    try:
+        result = node.set_parameters([Parameter('mag_rotation', value=[1.0, 2.0])])[0]
+        assert not result.successful and 'mag_rotation must be' in result.reason
+        assert node.set_parameters([Parameter('mag_rotation', value=[0, 0, 1])])[0].successful  # integers accepted
+        assert node.engine.settings.mag_rotation == (0.0, 0.0, 1.0)
+    finally:
+        node.destroy_node()
