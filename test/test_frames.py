@@ -354,3 +354,35 @@ def test_a_second_replay_starts_from_the_bias_file(sim_bags, tmp_path):
     first_a = bias_a[0].vector
     assert np.linalg.norm((first_a.x, first_a.y, first_a.z)) < 0.02 * np.linalg.norm(b)  # run 1 started at 0
     assert read_state(path).stamp > st.stamp  # written again at the end
+
+
+def test_every_executable_and_replay_know_the_new_parameters():
+    from ccf_ros.compat import PROFILES, defaults_for
+    from ccf_ros.settings import config_yaml
+
+    names = {'mount_rotation', 'mag_rotation', 'output_frame_id', 'gyro_offset_rad_s', 'bias_file',
+             'bias_save_interval_s'}
+    for profile in PROFILES.values():
+        assert names <= set(defaults_for(profile)), profile.executable
+    assert all(f'    {n}: ' in config_yaml() for n in names)
+
+
+def test_reframe_msg_turns_a_deserialized_message():
+    """The message path of replay (ROS 1, big-endian bags): rosbags' numpy covariances, header."""
+    from ccf_ros.offline.bagio import typestore
+    from ccf_ros.offline.messages import reframe_msg
+
+    T = typestore().types
+    V, Q = T['geometry_msgs/msg/Vector3'], T['geometry_msgs/msg/Quaternion']
+    hdr = T['std_msgs/msg/Header'](stamp=T['builtin_interfaces/msg/Time'](sec=1, nanosec=2), frame_id='imu_link')
+    c = np.array([1.0, 0, 0, 0, 2.0, 0, 0, 0, 3.0])
+    m = T['sensor_msgs/msg/Imu'](header=hdr, orientation=Q(x=0.0, y=0.0, z=0.0, w=1.0), orientation_covariance=c.copy(),
+                                 angular_velocity=V(x=0.0, y=0.0, z=0.0), angular_velocity_covariance=c.copy(),
+                                 linear_acceleration=V(x=0.0, y=0.0, z=0.0),
+                                 linear_acceleration_covariance=np.array([-1.0] + [0.0] * 8))
+    R = rotation_matrix('m', [0, 0, math.pi / 2])
+    reframe_msg(m, 'base_link', R)
+    assert m.header.frame_id == 'base_link'
+    assert np.allclose(m.angular_velocity_covariance, [2.0, 0, 0, 0, 1.0, 0, 0, 0, 3.0], atol=1e-12)
+    assert list(m.linear_acceleration_covariance) == [-1.0] + [0.0] * 8  # unknown stays unknown
+    assert list(m.orientation_covariance) == list(c)  # the engine's, written by fill_imu: not touched here

@@ -108,3 +108,18 @@ def test_node_refuses_a_bad_mount_at_start_and_while_running(context):
         assert node.engine.settings.mag_rotation == (0.0, 0.0, 1.0)
     finally:
         node.destroy_node()
+
+
+def test_node_writes_the_bias_file_every_interval_while_running(context, inputs, tmp_path):
+    path = tmp_path / 'bias.json'
+    node = reliable_node(context, bias_file=str(path), bias_save_interval_s=0.2)
+    h = Harness(context, node)
+    try:
+        h.wait_connected()
+        h.feed(inputs[:600], 300)
+        assert h.spin_until(path.exists, 5.0), 'not written while running'
+        first = read_state(path).stamp
+        assert h.spin_until(lambda: read_state(path).stamp > first, 5.0), 'not written again'
+        assert [p.name for p in tmp_path.iterdir()] == ['bias.json']  # no temporary left behind
+    finally:
+        h.close()
