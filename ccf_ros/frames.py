@@ -95,7 +95,9 @@ def apply(m: Sequence[float], v: Sequence[float]) -> Vec3:
 
 
 def rotate_covariance(m: Sequence[float], cov: Sequence[float]) -> tuple[float, ...]:
-    """``m C mᵀ`` of a row-major 3x3 covariance; one with ``cov[0] == -1`` (REP-145: "no estimate") is kept."""
-    if cov[0] == -1.0:
-        return tuple(cov)
+    """``m C mᵀ`` of a row-major 3x3 covariance; one with ``cov[0] == -1`` (REP-145: "no estimate") is kept, and so
+    is ``c I`` (zeros included: drivers that report none), which every rotation leaves unchanged."""
+    c0 = cov[0]
+    if c0 == -1.0 or (cov[1] == cov[2] == cov[3] == cov[5] == cov[6] == cov[7] == 0.0 and cov[4] == cov[8] == c0):
+        return cov if isinstance(cov, tuple) else tuple(cov)
     return matmul(matmul(m, cov), transpose(m))

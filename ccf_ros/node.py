@@ -68,6 +68,7 @@ from .core.base import ANSWERED_BELOW
 from .core.quaternion import from_xyzw, rpy_of
 from .core.registry import FILTERS
 from .engine import ImuEngine, Output
+from .frames import apply
 from .node_support import (
     PER_AXIS,
     Diagnostics,
@@ -550,6 +551,8 @@ class CcfNode(Node):
         if self.pub_rpy_raw is not None and self._use_mag:
             # The magnetometer sample the engine paired with this one (calibrated; asking the pairer again with the
             # header stamp could consume samples the engine did not, after a stamp it skipped as far ahead).
+            if self._rot is not None:
+                acc = apply(self._rot, acc)  # the output frame, as the paired magnetometer sample is
             rpy = raw_rpy(acc, self.engine.paired_mag, self._world_frame)
             if rpy is not None:
                 self.pub_rpy_raw.publish(stamped(rpy))

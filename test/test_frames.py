@@ -155,6 +155,8 @@ def test_covariance_is_rotated_and_unknown_is_kept():
     c = rotate_covariance(R, (1.0, 0, 0, 0, 4.0, 0, 0, 0, 9.0))
     assert np.allclose(c, (4.0, 0, 0, 0, 1.0, 0, 0, 0, 9.0), atol=1e-12)
     assert rotate_covariance(R, (-1.0,) + (0.0,) * 8) == (-1.0,) + (0.0,) * 8
+    iso = (2.0, 0.0, 0.0, 0.0, 2.0, 0.0, 0.0, 0.0, 2.0)
+    assert rotate_covariance(R, iso) is iso  # c I: unchanged by any rotation, not recomputed
 
 
 # --- state file -----------------------------------------------------------------------------------------------------

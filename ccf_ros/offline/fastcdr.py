@@ -8,6 +8,7 @@ float64 fields. Anything else (ROS 1, big-endian) goes through rosbags.
 
 from __future__ import annotations
 
+import functools
 import struct
 from collections.abc import Sequence
 
@@ -91,14 +92,24 @@ def reframe_imu(
     if new_frame_id is None:
         buf = bytearray(raw)
     else:
-        n = len(new_frame_id) + 1
-        end = 16 + n  # after the string's NUL, in the buffer (data start at 4)
-        new_off = ((end - 4 + 7) & ~7) + 4
-        buf = bytearray(raw[:12])
-        buf += struct.pack('<I', n) + new_frame_id + b'\x00' * (1 + new_off - end)
-        buf += raw[off:]
+        mid, new_off = _frame_field(new_frame_id)
+        buf = bytearray(memoryview(raw)[:12])
+        buf += mid
+        buf += memoryview(raw)[off:]
         off = new_off
     if rot is not None:
         for at in (ANGULAR_VELOCITY_COVARIANCE, LINEAR_ACCELERATION_COVARIANCE):
-            _F9.pack_into(buf, off + at, *rotate_covariance(rot, _F9.unpack_from(buf, off + at)))
+            cov = _F9.unpack_from(buf, off + at)
+            turned = rotate_covariance(rot, cov)
+            if turned is not cov:
+                _F9.pack_into(buf, off + at, *turned)
     return buf, off
+
+
+@functools.lru_cache(maxsize=8)
+def _frame_field(frame_id: bytes) -> tuple[bytes, int]:
+    """The serialized frame_id string (length, bytes, NUL) with the padding up to the body, and the body's offset."""
+    n = len(frame_id) + 1
+    end = 16 + n  # after the string's NUL, in the buffer (data start at 4)
+    new_off = ((end - 4 + 7) & ~7) + 4
+    return struct.pack('<I', n) + frame_id + b'\x00' * (1 + new_off - end), new_off
