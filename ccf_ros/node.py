@@ -242,6 +242,11 @@ class CcfNode(Node):
                                        clock=Clock(clock_type=ClockType.STEADY_TIME))
 
         self._log_notices(MEANINGLESS_GAINS)
+        if self.engine.output_rotation is not None and not self._settings['output_frame_id']:
+            # Turned into the output frame's axes but still labelled with the IMU's frame: a consumer that applies
+            # the output -> IMU transform (robot_localization) would turn it twice (doc/frames.md).
+            self.get_logger().warning('mount_rotation is set but output_frame_id is empty: imu/data keeps the input '
+                                      'frame_id although it is in the output frame; set output_frame_id (e.g. base_link)')
         notice = bias_estimation_notice(self._settings, self.profile)
         if notice:
             self.get_logger().info(notice)
