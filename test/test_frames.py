@@ -388,3 +388,18 @@ def test_reframe_msg_turns_a_deserialized_message():
     assert np.allclose(m.angular_velocity_covariance, [2.0, 0, 0, 0, 1.0, 0, 0, 0, 3.0], atol=1e-12)
     assert list(m.linear_acceleration_covariance) == [-1.0] + [0.0] * 8  # unknown stays unknown
     assert list(m.orientation_covariance) == list(c)  # the engine's, written by fill_imu: not touched here
+
+
+def test_replay_with_a_foreign_bias_file_warns_once_and_runs(sim_bags, tmp_path, capsys):
+    from ccf_ros.cli import main as ccf
+
+    path = tmp_path / 'bias.json'
+    other = State('another_imu', time.time())
+    other.set_gyro_bias((0.5, 0.5, 0.5), 0.001)
+    write_state(path, other)
+    assert ccf(['replay', str(sim_bags / 'plain'), '-o', str(tmp_path / 'out'), '--param', f'bias_file={path}']) == 0
+    err = capsys.readouterr().err
+    assert err.count('bias_file ignored') == 1 and "written for frame_id 'another_imu'" in err
+    _, bias = read_out(tmp_path / 'out')
+    assert np.linalg.norm((bias[0].vector.x, bias[0].vector.y, bias[0].vector.z)) < 0.01  # not the file's 0.5
+    assert read_state(path).frame_id == 'imu_link'  # replaced by this IMU's at the end
