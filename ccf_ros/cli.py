@@ -272,6 +272,9 @@ UNITS_BY_NAME = {
     'mahony_kp': '1/s',
     'ki': '1/s²',
     'mahony_ki': '1/s²',
+    # [roll, pitch, yaw] in rad, or a unit quaternion [x, y, z, w]: the names, kept
+    'mount_rotation': 'rad|quat',
+    'mag_rotation': 'rad|quat',
 }
 
 
@@ -291,6 +294,8 @@ def format_value(value: Any) -> str:
         return f'{value:g}'
     if isinstance(value, (tuple, list)):
         return '[' + ', '.join(format_value(v) for v in value) + ']'
+    if value == '':
+        return "''"
     return str(value)
 
 

@@ -10,13 +10,18 @@ filter (repeated or backward stamp, non-finite or corrupted gyro) gets the curre
 from __future__ import annotations
 
 import math
+import time
+from collections.abc import Callable
+from pathlib import Path
 from typing import NamedTuple
 
 from .core.base import ANSWERED_BELOW, OrientationFilter, Status, acc_usable, mag_usable
 from .core.ccf import GRAVITY_M_S2, CcfParams
 from .core.pairing import MagPairer
 from .core.quaternion import WORLD_FRAMES, level_quat, quat_from_acc_mag_scalar, quat_mul_scalar, relevel, to_xyzw
+from .frames import IDENTITY, Mat3, apply, is_identity, matmul, transpose
 from .settings import AdapterSettings
+from .state_file import State, StateFileError, read_state, write_state
 
 #: A stamp this much (s) before the latest one is a clock jump, not a late sample: the filter restarts.
 JUMP_BACK_RESET_S = 1.0
@@ -29,6 +34,8 @@ STALE_SHARE_GAIN = 0.01
 #: once the next sample continues from it; a lone one (a clock-sync step undone, a bad stamp) is skipped instead of
 #: re-initialising the filter and leaving every later sample "far behind".
 JUMP_AHEAD_S = 1.0
+#: A state file (``bias_file``) older than this (s) is not used: the sensor may have changed since.
+STATE_MAX_AGE_S = 30 * 86400.0
 
 Vec3 = tuple[float, float, float]
 
@@ -85,7 +92,16 @@ class ImuEngine:
         self._stateless_q: tuple[float, float, float, float] | None = None
         #: the held stateless orientation's heading came from a magnetometer sample
         self._stateless_heading = False
+        #: the IMU messages' frame_id, once an adapter told it (:meth:`set_sensor_frame`); None: not yet
+        self.sensor_frame_id: str | None = None
+        #: a state file read by :meth:`load_state`, applied when the sensor's frame_id is known
+        self._pending_state: State | None = None
+        #: warnings about the state file, in order (also passed to :attr:`on_warning` if set)
+        self.warnings: list[str] = []
+        self.on_warning: Callable[[str], None] | None = None
         self.set_settings(self.settings)
+        if self.settings.bias_file:
+            self.load_state(self.settings.bias_file)
 
     def set_settings(self, settings: AdapterSettings) -> None:
         """Apply new adapter settings; the filter state is kept."""
@@ -94,9 +110,18 @@ class ImuEngine:
         self._constant_dt = settings.constant_dt
         self._stddev = settings.orientation_stddev
         bx, by, bz = settings.mag_bias
-        s = settings.mag_soft_iron
-        identity = s == (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
-        self._mag_cal = None if (bx == by == bz == 0.0 and identity) else (bx, by, bz, *s)
+        # Mounting: the IMU's vectors into the output frame, v_out = R (v - offset) (offset: the gyro's only).
+        rot = settings.mount_matrix
+        self._rot: Mat3 | None = None if is_identity(rot) else rot
+        off = settings.gyro_offset_rad_s
+        self._gyro_off = (off[0], off[1], off[2])
+        #: the rotation of published vectors and their covariances into the output frame (None: identity)
+        self.output_rotation = self._rot
+        # None when there is nothing to do: the common case costs one test per sample.
+        self._reframe = None if self._rot is None and off == (0.0, 0.0, 0.0) else (rot, self._gyro_off)
+        # Magnetometer: m_out = R_mount R_mag S (m_raw - b), one matrix.
+        s = matmul(rot, matmul(settings.mag_matrix, settings.mag_soft_iron))
+        self._mag_cal = None if (bx == by == bz == 0.0 and is_identity(s)) else (bx, by, bz, *s)
         turn = settings.yaw_turn_rad
         # q_out = Rz(turn) ⊗ q: a rotation about the output world frame's z (up in ENU/NWU, down in NED), as
         # imu_tools turns its output; applied in one place (_output).
@@ -154,6 +179,13 @@ class ImuEngine:
         Returns the output, or None before the first usable accelerometer sample (no orientation exists yet).
         """
         self.n_in += 1
+        if self._reframe is not None:
+            (r0, r1, r2, r3, r4, r5, r6, r7, r8), (o0, o1, o2) = self._reframe
+            gx, gy, gz = gyr[0] - o0, gyr[1] - o1, gyr[2] - o2
+            gyr = (r0 * gx + r1 * gy + r2 * gz, r3 * gx + r4 * gy + r5 * gz, r6 * gx + r7 * gy + r8 * gz)
+            if self._rot is not None:
+                ax, ay, az = acc
+                acc = (r0 * ax + r1 * ay + r2 * az, r3 * ax + r4 * ay + r5 * az, r6 * ax + r7 * ay + r8 * az)
         t_last = self._t_last
         if t_s - t_last > JUMP_AHEAD_S and t_last > -math.inf and t_s - t_last > self.filter.params.max_dt_s:
             t_ahead = self._t_ahead
@@ -212,7 +244,9 @@ class ImuEngine:
         rate = None
         if self._corrected_rate:
             rate = (gyr[0] - bias[0], gyr[1] - bias[1], gyr[2] - bias[2])
-        lin = None
+        elif self._reframe is not None:
+            rate = gyr  # in the output frame, the offset removed: not the input's
+        lin = acc if self._rot is not None else None
         if self._remove_g:
             qw, qx, qy, qz = q
             # World up in the body frame (REP-145: +g up at rest) from the filter's frame; NED's z points down.
@@ -270,6 +304,91 @@ class ImuEngine:
         )
         q_world = quat_mul_scalar(WORLD_FRAMES[p.world_frame], self._stateless_q)
         return self._output(q_world, status, gyr, acc, (vi, vi, vh))
+
+    # --- the state file (bias_file) ------------------------------------------------------------------------------
+
+    def _warn(self, text: str) -> None:
+        self.warnings.append(text)
+        if self.on_warning is not None:
+            self.on_warning(text)
+
+    @property
+    def wants_sensor_frame(self) -> bool:
+        """Whether the adapter should call :meth:`set_sensor_frame` (a state file is used and the frame is unknown)."""
+        return self.sensor_frame_id is None and bool(self.settings.bias_file)
+
+    def load_state(self, path: str | Path) -> bool:
+        """Read a state file; its gyro bias is applied at :meth:`set_sensor_frame` (when the IMU's frame_id is
+        known), before the first sample is filtered. A missing file is silent (a first start); an unreadable, stale
+        or malformed one is one warning and ignored. Returns whether a state is pending."""
+        try:
+            state = read_state(path)
+            state.gyro_bias()  # malformed sections are found now, not at the first sample
+        except FileNotFoundError:
+            return False
+        except StateFileError as err:
+            self._warn(f'bias_file ignored: {err}')
+            return False
+        age = time.time() - state.stamp
+        if age > STATE_MAX_AGE_S:
+            self._warn(f'bias_file {path} ignored: written {age / 86400:.0f} days ago (stale: more than '
+                       f'{STATE_MAX_AGE_S / 86400:.0f})')
+            return False
+        self._pending_state = state
+        if self.sensor_frame_id is not None:
+            self.set_sensor_frame(self.sensor_frame_id)
+        return True
+
+    def set_sensor_frame(self, frame_id: str) -> None:
+        """The IMU messages' frame_id (adapters call this before the first sample while :attr:`wants_sensor_frame`):
+        a pending state file is applied if it was written for this frame, else one warning."""
+        self.sensor_frame_id = frame_id
+        state, self._pending_state = self._pending_state, None
+        if state is None:
+            return
+        if state.frame_id and frame_id and state.frame_id != frame_id:
+            self._warn(f'bias_file ignored: written for frame_id {state.frame_id!r}, this IMU is {frame_id!r}')
+            return
+        gb = state.gyro_bias()
+        if gb is None:
+            return
+        b_imu, sigma = gb
+        p = self.filter.params
+        init = float(getattr(p, 'bias_sigma_init_rad_s', 0.0)) or math.inf
+        walk = float(getattr(p, 'bias_walk_rad_s_sqrt_s', 0.0))
+        age = max(time.time() - state.stamp, 0.0)
+        # The bias may have wandered since the file was written: its uncertainty grows with the bias walk.
+        s = min(math.sqrt((sigma if sigma is not None else init) ** 2 + walk * walk * age), init)
+        o = self._gyro_off
+        b = apply(self._rot or IDENTITY, (b_imu[0] - o[0], b_imu[1] - o[1], b_imu[2] - o[2]))
+        self.filter.set_gyro_bias(b, s if math.isfinite(s) else 0.0)
+
+    def state(self) -> State:
+        """What :meth:`save_state` writes: the gyro bias in the IMU's frame (``gyro_offset_rad_s`` included)."""
+        b = apply(transpose(self._rot or IDENTITY), self.filter.gyro_bias)
+        o = self._gyro_off
+        sigma = getattr(self.filter, 'gyro_bias_sigma_rad_s', None)
+        st = State(self.sensor_frame_id or '', time.time())
+        st.set_gyro_bias((b[0] + o[0], b[1] + o[1], b[2] + o[2]), None if sigma is None else float(sigma))
+        return st
+
+    def save_state(self, path: str | Path) -> None:
+        """Write :meth:`state` to ``path`` atomically (sections other parts wrote there are kept). Nothing is
+        written before the filter has an orientation (an unchanged bias would only reset the file's age).
+
+        Raises:
+            OSError: not writable.
+        """
+        if not self.filter.initialized and not self.n_out:
+            return
+        st = self.state()
+        try:
+            old = read_state(path)
+            if not old.frame_id or old.frame_id == st.frame_id:
+                st.sections = {**old.sections, **st.sections}
+        except (FileNotFoundError, StateFileError):
+            pass
+        write_state(path, st)
 
     def counts(self) -> list[int]:
         """Samples per :class:`~ccf_ros.core.base.Status` since this engine was made."""

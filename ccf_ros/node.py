@@ -68,6 +68,7 @@ from .core.base import ANSWERED_BELOW
 from .core.quaternion import from_xyzw, rpy_of
 from .core.registry import FILTERS
 from .engine import ImuEngine, Output
+from .frames import apply
 from .node_support import (
     PER_AXIS,
     Diagnostics,
@@ -85,9 +86,10 @@ from .offline.fastcdr import (
     patch_imu_vectors,
     read_imu,
     read_mag,
+    reframe_imu,
     vector3_stamped,
 )
-from .offline.messages import fill_imu, stamp_s
+from .offline.messages import fill_imu, reframe_msg, stamp_s
 from .settings import DESCRIPTIONS, build
 from .sync import HOLD_S, ImuMagSync
 
@@ -141,7 +143,8 @@ def _descriptor(name: str, default: Any, read_only: bool) -> ParameterDescriptor
     elif isinstance(default, tuple):
         # Dynamic: [1, 0, 0] (integers) is as good as [1.0, 0.0, 0.0]; the node checks the values.
         d.dynamic_typing = True
-        d.additional_constraints = f'{len(default)} numbers'
+        d.additional_constraints = ('[roll, pitch, yaw] (rad) or [x, y, z, w]' if name.endswith('_rotation')
+                                    else f'{len(default)} numbers')
     elif isinstance(default, float):
         # Dynamic: rclpy refuses an integer for a double-typed parameter; the node accepts and converts it.
         d.dynamic_typing = True
@@ -191,6 +194,12 @@ class CcfNode(Node):
                           for name, default in self._defaults.items()}
         filt, adapter = build(self._effective(self._settings), strict=False)
         self.engine = ImuEngine(filt, adapter)
+        # The bias_file's warnings: those of the load (above) now, later ones as they come.
+        for text in self.engine.warnings:
+            self.get_logger().warning(text)
+        self.engine.on_warning = self.get_logger().warning
+        self._save_timer: Any = None
+        self._save_every: tuple[str | None, float] = (None, 0.0)
         self.sync: ImuMagSync[Held] = ImuMagSync(self.HOLD_S)
         self.stats = InputStats()
         self._noticed: set[str] = set()
@@ -233,6 +242,11 @@ class CcfNode(Node):
                                        clock=Clock(clock_type=ClockType.STEADY_TIME))
 
         self._log_notices(MEANINGLESS_GAINS)
+        if self.engine.output_rotation is not None and not self._settings['output_frame_id']:
+            # Turned into the output frame's axes but still labelled with the IMU's frame: a consumer that applies
+            # the output -> IMU transform (robot_localization) would turn it twice (doc/frames.md).
+            self.get_logger().warning('mount_rotation is set but output_frame_id is empty: imu/data keeps the input '
+                                      'frame_id although it is in the output frame; set output_frame_id (e.g. base_link)')
         notice = bias_estimation_notice(self._settings, self.profile)
         if notice:
             self.get_logger().info(notice)
@@ -289,6 +303,20 @@ class CcfNode(Node):
             else:
                 self.pub_tf = self.create_publisher(self._tf_type, '/tf', TF_QOS, event_callbacks=self._quiet)
         self._tf = bool(st['publish_tf']) and self.pub_tf is not None
+        # Output frame: the engine turns the vectors; the messages get the new frame_id and turned covariances.
+        out_frame = str(st['output_frame_id'])
+        self._out_frame = out_frame.encode() if out_frame else None
+        self._rot = self.engine.output_rotation
+        self._reframe = self._out_frame is not None or self._rot is not None
+        every = (str(st['bias_file']) or None, float(st['bias_save_interval_s']))
+        if every != self._save_every:
+            self._save_every = every
+            if self._save_timer is not None:
+                self.destroy_timer(self._save_timer)
+                self._save_timer = None
+            if every[0] and every[1] > 0.0:
+                self._save_timer = self.create_timer(every[1], self.save_state,
+                                                     clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def _quiet_publisher(self, msg_type: Any, topic: str) -> Publisher:
         return self.create_publisher(msg_type, topic, OUTPUT_DEPTH, event_callbacks=self._quiet)
@@ -466,6 +494,8 @@ class CcfNode(Node):
         Every sample is answered once an orientation exists: one that cannot advance the filter (repeated or
         backward stamp, non-finite rate) with the current orientation, counted in the diagnostics.
         """
+        if self.engine.wants_sensor_frame:
+            self.engine.set_sensor_frame(imu_header(data)[2] if isinstance(data, bytes) else data.header.frame_id)
         out = self.engine.on_imu(t, gyr, acc)
         if out is None:
             self._warn_throttled(f'sample at t={t:.6f} s skipped: no orientation yet (no valid accelerometer sample)')
@@ -474,7 +504,12 @@ class CcfNode(Node):
             self._warn_throttled(f'sample at t={t:.6f} s could not advance the filter (answered with the current '
                                  f'orientation); so far: {self.engine.skipped_by_reason()}')
         if isinstance(data, bytes):
-            buf = bytearray(data)
+            if self._reframe:
+                # Into the output frame (new frame_id: the body moves); the bias, debug and TF take its header.
+                buf, off = reframe_imu(data, off, self._out_frame, self._rot)
+                data = bytes(buf)
+            else:
+                buf = bytearray(data)
             patch_imu(buf, off, out.orientation_xyzw, out.covariance)
             if out.angular_velocity is not None or out.linear_acceleration is not None:
                 patch_imu_vectors(buf, off, out.angular_velocity, out.linear_acceleration)
@@ -492,6 +527,8 @@ class CcfNode(Node):
     def _answer_msg(self, t: float, msg: Imu, out: Output, acc: Vec3) -> None:
         """The same answer built as messages (input that is not little-endian CDR)."""
         fill_imu(msg, out, list(out.covariance))
+        if self._reframe:
+            reframe_msg(msg, self._out_frame.decode() if self._out_frame else '', self._rot)
         self.pub_imu.publish(msg)
         if self._bias_due(self.engine.clock_s):
             b = Vector3Stamped(header=msg.header)
@@ -519,6 +556,8 @@ class CcfNode(Node):
         if self.pub_rpy_raw is not None and self._use_mag:
             # The magnetometer sample the engine paired with this one (calibrated; asking the pairer again with the
             # header stamp could consume samples the engine did not, after a stamp it skipped as far ahead).
+            if self._rot is not None:
+                acc = apply(self._rot, acc)  # the output frame, as the paired magnetometer sample is
             rpy = raw_rpy(acc, self.engine.paired_mag, self._world_frame)
             if rpy is not None:
                 self.pub_rpy_raw.publish(stamped(rpy))
@@ -552,6 +591,21 @@ class CcfNode(Node):
         if now - self._last_warn > 5.0:
             self._last_warn = now
             self.get_logger().warning(text)
+
+    def save_state(self) -> None:
+        """Write bias_file now (atomically); a failure is a warning (the node runs on)."""
+        path = str(self._settings['bias_file'])
+        if not path:
+            return
+        try:
+            self.engine.save_state(path)
+        except OSError as err:
+            self._warn_throttled(f'cannot write bias_file {path}: {err}')
+
+    def destroy_node(self) -> None:
+        """Write bias_file (shutdown), then destroy the node."""
+        self.save_state()
+        super().destroy_node()
 
     def _on_reset(self, _req: Trigger.Request, resp: Trigger.Response) -> Trigger.Response:
         # Samples waiting for their magnetometer sample are answered first: they came before the reset.

@@ -14,6 +14,7 @@ from .core.base import OrientationFilter
 from .core.registry import all_param_names, make_filter
 from .core.registry import defaults as filter_defaults
 from .errors import ParameterError
+from .frames import Mat3, rotation_matrix
 
 _IDENTITY3 = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
 
@@ -31,6 +32,11 @@ ENGINE_DEFAULTS: dict[str, Any] = {
     'remove_gravity_vector': False,
     'stateless': False,
     'bias_corrected_rate': False,
+    'mount_rotation': (0.0, 0.0, 0.0),
+    'mag_rotation': (0.0, 0.0, 0.0),
+    'output_frame_id': '',
+    'gyro_offset_rad_s': (0.0, 0.0, 0.0),
+    'bias_file': '',
 }
 
 #: Settings only the node uses (replay accepts and ignores them, so one parameters file serves both).
@@ -42,6 +48,7 @@ NODE_DEFAULTS: dict[str, Any] = {
     'publish_tf': False,
     'fixed_frame': 'odom',
     'reverse_tf': False,
+    'bias_save_interval_s': 60.0,
 }
 
 #: imu_tools gains with no ccf meaning: accepted (a YAML written for imu_tools applies unchanged) and, when set to a
@@ -116,6 +123,16 @@ DESCRIPTIONS: dict[str, str] = {
     'remove_gravity_vector': 'publish linear_acceleration with gravity (9.80665 m/s^2, up) removed',
     'stateless': 'publish the orientation computed from each accelerometer (+ magnetometer) sample alone (debug)',
     'bias_corrected_rate': 'publish angular_velocity minus the gyro-bias estimate',
+    'mount_rotation': 'rotation of the IMU frame in the output frame: [roll, pitch, yaw] rad (fixed axes X-Y-Z, as '
+                      'static_transform_publisher) or [x, y, z, w]; gyro, accelerometer, magnetometer and the output are '
+                      'turned into the output frame (doc/frames.md)',
+    'mag_rotation': 'rotation of the magnetometer frame in the IMU frame (after mag_bias/mag_soft_iron): [roll, pitch, '
+                    'yaw] rad or [x, y, z, w]',
+    'output_frame_id': 'header.frame_id of the output (imu/data, imu/gyro_bias, TF child); empty = the input\'s',
+    'gyro_offset_rad_s': 'known gyro offset [x, y, z], rad/s, IMU frame, subtracted from the rate before anything else '
+                         '(datasheet, calibration)',
+    'bias_file': 'JSON file of the learnt gyro bias (IMU frame, with its sigma and frame_id): loaded at start, written '
+                 'atomically on shutdown (and every bias_save_interval_s by the node, at the end by replay); empty = none',
     'publish_debug_topics': 'node: also publish imu/rpy/filtered and imu/rpy/raw (roll, pitch, yaw in rad)',
     'gyro_bias_rate_hz': 'node: highest rate of imu/gyro_bias, Hz (the bias changes over seconds); 0 = every sample',
     'qos_reliability': 'node: input QoS reliability, best_effort (sensor data) or reliable',
@@ -123,6 +140,7 @@ DESCRIPTIONS: dict[str, str] = {
     'publish_tf': 'node: broadcast the orientation as a transform fixed_frame -> IMU frame on /tf',
     'fixed_frame': 'node: parent frame of the published transform',
     'reverse_tf': 'node: publish the inverse transform (IMU frame -> fixed_frame)',
+    'bias_save_interval_s': 'node: write bias_file this often, s (and on shutdown); 0 = only on shutdown',
     **{name: f'imu_tools gain, accepted; ccf uses {role}' for name, (_, role) in IMU_TOOLS_GAINS.items()},
 }
 
@@ -148,6 +166,11 @@ class AdapterSettings:
     remove_gravity_vector: bool = False
     stateless: bool = False
     bias_corrected_rate: bool = False
+    mount_rotation: tuple[float, ...] = (0.0, 0.0, 0.0)
+    mag_rotation: tuple[float, ...] = (0.0, 0.0, 0.0)
+    output_frame_id: str = ''
+    gyro_offset_rad_s: tuple[float, ...] = (0.0, 0.0, 0.0)
+    bias_file: str = ''
 
     def __post_init__(self) -> None:
         for name in ('mag_timeout_s', 'constant_dt', 'orientation_stddev', 'yaw_offset', 'declination'):
@@ -167,6 +190,24 @@ class AdapterSettings:
         for name in ('remove_gravity_vector', 'stateless', 'bias_corrected_rate'):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f'{name} must be a bool, got {getattr(self, name)!r}')
+        rotation_matrix('mount_rotation', self.mount_rotation)
+        rotation_matrix('mag_rotation', self.mag_rotation)
+        if len(self.gyro_offset_rad_s) != 3 or not all(math.isfinite(v) for v in self.gyro_offset_rad_s):
+            raise ValueError(f'gyro_offset_rad_s must be 3 finite numbers [x, y, z] (rad/s), got '
+                             f'{list(self.gyro_offset_rad_s)!r}')
+        for name in ('output_frame_id', 'bias_file'):
+            if not isinstance(getattr(self, name), str):
+                raise ValueError(f'{name} must be a string, got {getattr(self, name)!r}')
+
+    @property
+    def mount_matrix(self) -> Mat3:
+        """Row-major rotation matrix of :attr:`mount_rotation` (IMU frame -> output frame)."""
+        return rotation_matrix('mount_rotation', self.mount_rotation)
+
+    @property
+    def mag_matrix(self) -> Mat3:
+        """Row-major rotation matrix of :attr:`mag_rotation` (magnetometer frame -> IMU frame)."""
+        return rotation_matrix('mag_rotation', self.mag_rotation)
 
     @property
     def yaw_turn_rad(self) -> float:
@@ -192,6 +233,17 @@ def _flag(name: str, value: Any) -> bool:
     raise ValueError(f'{name} must be true or false, got {value!r}')
 
 
+def _numbers(name: str, value: Any, what: str) -> tuple[float, ...]:
+    """A list of numbers (``[1, 0, 0]`` as text from ``--param`` too) as floats, or ValueError naming ``name``."""
+    m = value
+    if isinstance(m, str):
+        m = [v for v in m.strip().strip('[]()').split(',') if v.strip()]
+    try:
+        return tuple(_number(name, v) for v in m)
+    except TypeError:
+        raise ValueError(f'{name} must be {what}, got {value!r}') from None
+
+
 def adapter_settings(values: Mapping[str, Any]) -> AdapterSettings:
     """:class:`AdapterSettings` from flat settings (missing names keep their defaults; others are ignored)."""
     kw: dict[str, Any] = {}
@@ -200,14 +252,14 @@ def adapter_settings(values: Mapping[str, Any]) -> AdapterSettings:
             kw[name] = _number(name, values[name])
     if any(f'mag_bias_{a}' in values for a in 'xyz'):
         kw['mag_bias'] = tuple(_number(f'mag_bias_{a}', values.get(f'mag_bias_{a}', 0.0)) for a in 'xyz')
-    if 'mag_soft_iron' in values:
-        m = values['mag_soft_iron']
-        if isinstance(m, str):
-            m = [v for v in m.strip().strip('[]()').split(',') if v.strip()]
-        try:
-            kw['mag_soft_iron'] = tuple(_number('mag_soft_iron', v) for v in m)
-        except TypeError:
-            raise ValueError(f'mag_soft_iron must be 9 numbers, got {m!r}') from None
+    for name, what in (('mag_soft_iron', '9 numbers'), ('mount_rotation', '3 or 4 numbers'),
+                       ('mag_rotation', '3 or 4 numbers'), ('gyro_offset_rad_s', '3 numbers')):
+        if name in values:
+            kw[name] = _numbers(name, values[name], what)
+    for name in ('output_frame_id', 'bias_file'):
+        if name in values:
+            v = values[name]
+            kw[name] = '' if v is None else v  # an empty YAML value is None
     for name in ('remove_gravity_vector', 'stateless', 'bias_corrected_rate'):
         if name in values:
             kw[name] = _flag(name, values[name])
@@ -264,6 +316,8 @@ def config_yaml() -> str:
             text = 'true' if value else 'false'
         elif isinstance(value, float):
             text = repr(round(value, 10))
+        elif isinstance(value, str) and not value:
+            text = "''"
         elif isinstance(value, tuple):
             text = '[' + ', '.join(repr(round(float(v), 10)) for v in value) + ']'
         else:

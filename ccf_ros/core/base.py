@@ -361,3 +361,8 @@ class OrientationFilter(ABC):
     @abstractmethod
     def orientation_variance(self) -> tuple[float, float, float]:
         """Variance of roll, pitch and yaw errors, rad², for ``orientation_covariance``'s diagonal."""
+
+    def set_gyro_bias(self, bias_rad_s: tuple[float, float, float], sigma_rad_s: float) -> bool:
+        """Start from a known gyro bias (rad/s, body frame) with 1-σ uncertainty ``sigma_rad_s`` (rad/s), e.g. one
+        saved by an earlier run; the orientation is kept. Returns False if this filter estimates no bias (ignored)."""
+        return False

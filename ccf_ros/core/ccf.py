@@ -1301,3 +1301,15 @@ class QuaternionCcf(OrientationFilter):
         vi = p.incl_sigma_rad * p.incl_sigma_rad + self._var_incl
         vh = self._var_head + (p.heading_sigma_rad * p.heading_sigma_rad if self._heading_known else 0.0)
         return (vi, vi, vh)
+
+    def set_gyro_bias(self, bias_rad_s: tuple[float, float, float], sigma_rad_s: float) -> bool:
+        """Set the bias state (rad/s, body) and its covariance to ``diag(sigma_rad_s²)`` (rad/s): the NCF refines it
+        from there as from a rest of that quality. The orientation is kept."""
+        bx, by, bz = (float(v) for v in bias_rad_s)
+        p = float(sigma_rad_s) ** 2
+        self._x = (bx, by, bz, *self._x[3:])
+        if not self.initialized:
+            self._gyro_lp = (bx, by, bz)  # the rest low-pass starts from it (as _init does from the bias)
+        self._p_bias = (p, 0.0, 0.0, p, 0.0, p)
+        self._u_bias = p / self.params.bias_sigma_init_rad_s**2
+        return True

@@ -8,8 +8,11 @@ float64 fields. Anything else (ROS 1, big-endian) goes through rosbags.
 
 from __future__ import annotations
 
+import functools
 import struct
+from collections.abc import Sequence
 
+from ..frames import rotate_covariance
 from .messages import seconds
 
 Vec3 = tuple[float, float, float]
@@ -66,3 +69,47 @@ def read_mag(raw: bytes | bytearray | memoryview) -> tuple[float, Vec3]:
 def vector3_stamped(imu_raw: bytes | bytearray | memoryview, imu_off: int, v: Vec3) -> bytes:
     """A serialized Vector3Stamped with the Imu's header (bytes up to ``imu_off``) and vector ``v``."""
     return bytes(imu_raw[:imu_off]) + _F3.pack(*v)
+
+
+#: Offsets of angular_velocity_covariance and linear_acceleration_covariance from ``orientation``.
+ANGULAR_VELOCITY_COVARIANCE = 128
+LINEAR_ACCELERATION_COVARIANCE = 224
+_F9 = struct.Struct('<9d')
+
+
+def frame_id(raw: bytes | bytearray | memoryview) -> str:
+    """The header's frame_id of a little-endian CDR message that starts with a std_msgs/Header."""
+    n = _HDR.unpack_from(raw, 4)[2]
+    return bytes(raw[16:16 + max(n - 1, 0)]).decode('utf-8', 'replace')
+
+
+def reframe_imu(
+    raw: bytes | bytearray | memoryview, off: int, new_frame_id: bytes | None, rot: Sequence[float] | None,
+) -> tuple[bytearray, int]:
+    """A copy of a serialized Imu with header.frame_id ``new_frame_id`` (UTF-8, None: kept) and its
+    angular_velocity_covariance and linear_acceleration_covariance turned by ``rot`` (row-major 3x3, None: kept);
+    returns it and the new offset of ``orientation`` (the body moves with the frame_id's length)."""
+    if new_frame_id is None:
+        buf = bytearray(raw)
+    else:
+        mid, new_off = _frame_field(new_frame_id)
+        buf = bytearray(memoryview(raw)[:12])
+        buf += mid
+        buf += memoryview(raw)[off:]
+        off = new_off
+    if rot is not None:
+        for at in (ANGULAR_VELOCITY_COVARIANCE, LINEAR_ACCELERATION_COVARIANCE):
+            cov = _F9.unpack_from(buf, off + at)
+            turned = rotate_covariance(rot, cov)
+            if turned is not cov:
+                _F9.pack_into(buf, off + at, *turned)
+    return buf, off
+
+
+@functools.lru_cache(maxsize=8)
+def _frame_field(frame_id: bytes) -> tuple[bytes, int]:
+    """The serialized frame_id string (length, bytes, NUL) with the padding up to the body, and the body's offset."""
+    n = len(frame_id) + 1
+    end = 16 + n  # after the string's NUL, in the buffer (data start at 4)
+    new_off = ((end - 4 + 7) & ~7) + 4
+    return struct.pack('<I', n) + frame_id + b'\x00' * (1 + new_off - end), new_off

@@ -5,7 +5,10 @@ No ROS or rosbags import: the node, the offline tools and the fast CDR path all 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
+
+from ..frames import rotate_covariance
 
 if TYPE_CHECKING:
     from ..engine import Output
@@ -41,3 +44,18 @@ def fill_imu(msg: Any, out: Output, covariance: Any) -> None:
     if out.linear_acceleration is not None:
         v = msg.linear_acceleration
         v.x, v.y, v.z = out.linear_acceleration
+
+
+def reframe_msg(msg: Any, frame_id: str, rot: Sequence[float] | None) -> None:
+    """An Imu message into the output frame in place: header.frame_id ``frame_id`` (empty: kept) and the
+    angular_velocity and linear_acceleration covariances turned by ``rot`` (row-major 3x3; None: kept). The
+    message-level counterpart of :func:`~ccf_ros.offline.fastcdr.reframe_imu`."""
+    if frame_id:
+        msg.header.frame_id = frame_id
+    if rot is not None:
+        for name in ('angular_velocity_covariance', 'linear_acceleration_covariance'):
+            values = rotate_covariance(rot, [float(v) for v in getattr(msg, name)])
+            try:
+                getattr(msg, name)[:] = values  # numpy (rosbags)
+            except TypeError:
+                setattr(msg, name, values)  # rclpy's array.array: its setter takes a sequence

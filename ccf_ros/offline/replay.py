@@ -39,8 +39,17 @@ from .bagio import (
     typestore,
     unreadable,
 )
-from .fastcdr import LITTLE_ENDIAN_CDR, patch_imu, patch_imu_vectors, read_imu, read_mag, vector3_stamped
-from .messages import fill_imu, stamp_s
+from .fastcdr import (
+    LITTLE_ENDIAN_CDR,
+    frame_id,
+    patch_imu,
+    patch_imu_vectors,
+    read_imu,
+    read_mag,
+    reframe_imu,
+    vector3_stamped,
+)
+from .messages import fill_imu, reframe_msg, stamp_s
 
 if TYPE_CHECKING:  # rosbags is imported when a bag is opened, not with this module
     from rosbags.highlevel import AnyReader
@@ -134,6 +143,12 @@ def replay(
     with staged(bag_out) as tmp, open_bag(bag_in) as reader, open_writer(tmp, storage) as writer:
         replayer = _Replayer(reader, writer, engine, bag_in, topics, copy_input)
         n_out = replayer.run(progress)
+    warnings = engine.warnings + replayer.warnings
+    if engine.settings.bias_file:
+        try:
+            engine.save_state(engine.settings.bias_file)
+        except OSError as err:
+            warnings.append(f'cannot write bias_file {engine.settings.bias_file}: {err}')
     return ReplaySummary(
         n_in=engine.n_in,
         n_out=n_out,
@@ -145,7 +160,7 @@ def replay(
         n_resets_jump=engine.n_resets_jump,
         n_nonfinite_resets=engine.n_nonfinite_resets,
         flags=engine.filter.flags._asdict(),
-        warnings=replayer.warnings,
+        warnings=warnings,
     )
 
 
@@ -196,9 +211,26 @@ class _FastCdrPath:
     Imu's ``orientation``."""
 
     def __init__(self, engine: ImuEngine, bag: str | Path) -> None:
+        self._engine = engine
         self._on_imu = engine.on_imu
         self._on_mag = engine.on_mag
         self._bag = bag
+        out_frame = engine.settings.output_frame_id
+        self._frame = out_frame.encode() if out_frame else None
+        self._rot = engine.output_rotation
+        self._reframe = self._frame is not None or self._rot is not None
+        if engine.wants_sensor_frame:
+            self.on_imu = self._first_imu  # type: ignore[method-assign]  # once: then the plain method
+
+    def _first_imu(self, raw: bytes) -> tuple[bytes, Output, int] | None:
+        """The first IMU sample: tell the engine the sensor's frame_id (its bias_file applies from here)."""
+        del self.on_imu
+        if self._engine.wants_sensor_frame:
+            try:
+                self._engine.set_sensor_frame(frame_id(raw))
+            except (struct.error, IndexError) as err:
+                raise unreadable(self._bag, err) from err
+        return self.on_imu(raw)
 
     def on_imu(self, raw: bytes) -> tuple[bytes, Output, int] | None:
         try:
@@ -217,11 +249,15 @@ class _FastCdrPath:
 
     def serialize(self, answer: tuple[bytes, Output, int]) -> Serialized:
         raw, out, off = answer
-        buf = bytearray(raw)
+        if self._reframe:
+            # Output frame: a new frame_id moves the body; the input's rate and acceleration covariances turn.
+            buf, off = reframe_imu(raw, off, self._frame, self._rot)
+        else:
+            buf = bytearray(raw)
         patch_imu(buf, off, out.orientation_xyzw, out.covariance)
         if out.angular_velocity is not None or out.linear_acceleration is not None:
             patch_imu_vectors(buf, off, out.angular_velocity, out.linear_acceleration)
-        return memoryview(buf), vector3_stamped(raw, off, out.bias)
+        return memoryview(buf), vector3_stamped(buf, off, out.bias)
 
 
 class _MessagePath:
@@ -229,6 +265,9 @@ class _MessagePath:
     is serialized again (same header and fields). Answers are the message and the engine's output."""
 
     def __init__(self, engine: ImuEngine, reader: AnyReader, store: Typestore, bag: str | Path) -> None:
+        self._engine = engine
+        self._frame = engine.settings.output_frame_id
+        self._rot = engine.output_rotation
         self._on_imu = engine.on_imu
         self._on_mag = engine.on_mag
         self._reader = reader
@@ -243,6 +282,8 @@ class _MessagePath:
 
     def on_imu(self, raw: bytes) -> tuple[Any, Output] | None:
         msg = deserialize(self._reader, raw, IMU, self._bag)
+        if self._engine.wants_sensor_frame:
+            self._engine.set_sensor_frame(msg.header.frame_id)
         g, a = msg.angular_velocity, msg.linear_acceleration
         out = self._on_imu(stamp_s(msg.header), (g.x, g.y, g.z), (a.x, a.y, a.z))
         return None if out is None else (msg, out)
@@ -256,6 +297,8 @@ class _MessagePath:
         msg, out = answer
         self._covariance[:] = out.covariance
         fill_imu(msg, out, self._covariance)
+        if self._frame or self._rot is not None:
+            reframe_msg(msg, self._frame, self._rot)
         b = self._bias_vector
         b.x, b.y, b.z = out.bias
         self._bias.header = msg.header
