@@ -1121,8 +1121,16 @@ class QuaternionCcf(OrientationFilter):
         """
         if not self._bias_rested:
             # The first rest: once the estimate has converged on it (eight of its time constants), it was seen.
-            if self._rest_s >= self.params.rest_min_s + 8.0 * self.params.rest_tau_s:
+            p = self.params
+            if self._rest_s >= p.rest_min_s + 8.0 * p.rest_tau_s:
                 self._bias_rested = True
+                bx, by, bz = self._x[:3]
+                if bx * bx + by * by + bz * bz > 9.0 * p.bias_sigma_init_rad_s**2:
+                    # An offset far beyond the prior (a consumer MEMS gyro): the attitude's blends have averaged
+                    # samples carried by the wrong rate since the start. Start them again, now that the rate is right.
+                    # The reference field's dip was measured through that attitude too.
+                    self._n_init = 1
+                    self._forget_mag_reference()
             return True
         if self._rest_s >= REST_RELEARN_S:
             return True
