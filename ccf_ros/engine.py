@@ -10,10 +10,11 @@ filter (repeated or backward stamp, non-finite or corrupted gyro) gets the curre
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 from .core.base import ANSWERED_BELOW, OrientationFilter, Status, acc_usable, mag_usable
 from .core.ccf import GRAVITY_M_S2, CcfParams
+from .core.hard_iron import HardIronEstimator, HardIronStatus
 from .core.pairing import MagPairer
 from .core.quaternion import WORLD_FRAMES, level_quat, quat_from_acc_mag_scalar, quat_mul_scalar, relevel, to_xyzw
 from .settings import AdapterSettings
@@ -85,6 +86,8 @@ class ImuEngine:
         self._stateless_q: tuple[float, float, float, float] | None = None
         #: the held stateless orientation's heading came from a magnetometer sample
         self._stateless_heading = False
+        #: online hard-iron estimator (mag_online_calibration; None: off)
+        self.hard_iron: HardIronEstimator | None = None
         self.set_settings(self.settings)
 
     def set_settings(self, settings: AdapterSettings) -> None:
@@ -104,6 +107,14 @@ class ImuEngine:
         self._remove_g = settings.remove_gravity_vector
         self._stateless = settings.stateless
         self._corrected_rate = settings.bias_corrected_rate
+        if not settings.mag_online_calibration:
+            if self.hard_iron is not None and any(self.hard_iron.status().offset):
+                self.filter.magnetometer_changed()  # the applied offset is gone
+            self.hard_iron = None
+        elif self.hard_iron is None:
+            self.hard_iron = HardIronEstimator(settings.mag_online_memory_rad)
+        else:
+            self.hard_iron.memory_rad = settings.mag_online_memory_rad
 
     def _bank_counts(self) -> None:
         """Add the filter's counters to the engine's totals (before the filter's are reset or it is replaced)."""
@@ -179,13 +190,21 @@ class ImuEngine:
             self._n_far_back = 0
             if t_s > self._t_last:
                 self._t_last = t_s
-        mag = self.paired_mag = self.pairer.get(t_s)
+        mag = self.pairer.get(t_s)
         if self._constant_dt > 0.0:
             # Fixed sample period: a synthetic clock advanced per message replaces the header stamps.
             self._t_const += self._constant_dt
             t_s = self._t_const
         self.clock_s = t_s
         f = self.filter
+        hi = self.hard_iron
+        if hi is not None:
+            # Here, where the magnetometer sample meets the gyro: the estimate pairs them, and the sample reaches the
+            # filter with the applied offset subtracted.
+            mag = hi.correct(t_s, gyr, f.gyro_bias, mag)
+            if hi.jumped:
+                f.magnetometer_changed()
+        self.paired_mag = mag
         if self._stateless:
             return self._stateless_output(t_s, gyr, acc, mag)
         status = f.update(t_s, gyr, acc, mag)
@@ -270,6 +289,23 @@ class ImuEngine:
         )
         q_world = quat_mul_scalar(WORLD_FRAMES[p.world_frame], self._stateless_q)
         return self._output(q_world, status, gyr, acc, (vi, vi, vh))
+
+    def hard_iron_status(self) -> HardIronStatus | None:
+        """The online hard-iron estimator's status (None: mag_online_calibration is off)."""
+        return None if self.hard_iron is None else self.hard_iron.status()
+
+    def hard_iron_state(self) -> dict[str, Any] | None:
+        """The online hard-iron estimator's state as plain values, for a state file (None: it is off)."""
+        return None if self.hard_iron is None else self.hard_iron.state()
+
+    def restore_hard_iron(self, state: dict[str, Any]) -> None:
+        """Continue the online hard-iron estimate from :meth:`hard_iron_state`'s output (ignored when it is off).
+        Raises ValueError on a malformed state (the estimate is unchanged then)."""
+        hi = self.hard_iron
+        if hi is not None:
+            hi.restore(state)
+            if any(hi.status().offset):
+                self.filter.magnetometer_changed()
 
     def counts(self) -> list[int]:
         """Samples per :class:`~ccf_ros.core.base.Status` since this engine was made."""

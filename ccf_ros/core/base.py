@@ -361,3 +361,7 @@ class OrientationFilter(ABC):
     @abstractmethod
     def orientation_variance(self) -> tuple[float, float, float]:
         """Variance of roll, pitch and yaw errors, rad², for ``orientation_covariance``'s diagonal."""
+
+    def magnetometer_changed(self) -> None:  # noqa: B027 (a hook with a default, not an abstract method)
+        """The magnetometer's calibration changed under the filter (an online hard-iron offset was applied or moved):
+        a filter that learns a reference of the field (norm, dip) can take the new one. No-op by default."""
