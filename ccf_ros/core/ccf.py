@@ -1021,3 +1021,9 @@ class QuaternionCcf(OrientationFilter):
         vi = p.incl_sigma_rad * p.incl_sigma_rad + self._var_incl
         vh = self._var_head + (p.heading_sigma_rad * p.heading_sigma_rad if self._heading_known else 0.0)
         return (vi, vi, vh)
+
+    def magnetometer_changed(self) -> None:
+        """The magnetometer's calibration changed (online hard iron applied): the disturbance gate's reference field
+        is learnt anew from the next samples instead of rejecting the corrected field for ``mag_reaccept_s``."""
+        if self.initialized:
+            self._forget_mag_reference()
