@@ -46,8 +46,12 @@ RESIDUAL_MAX_REL = 0.04
 RESIDUAL_FLOOR_REL = 0.01
 #: The applied offset moves to the estimate when they differ by more than this fraction of the field norm.
 APPLY_STEP_REL = 0.01
-#: Fewest (forgotten-weighted) pairs before anything is applied.
-MIN_PAIRS = 10
+#: Fewest (forgotten-weighted) pairs before anything is applied (3 s of turning).
+MIN_PAIRS = 30
+#: The short memory (which tells a changed offset) is this share of ``memory_rad``.
+SHORT_MEMORY_SHARE = 0.2
+#: A first offset is applied only if larger than this fraction of the field norm (see ``_decide``).
+APPLY_MIN_REL = 0.06
 #: Statuses of :class:`HardIronStatus`.
 STATUSES = ('not_determined', 'tracking', 'applied')
 
@@ -84,23 +88,78 @@ def _matrix(q: Quat) -> np.ndarray:
     ])
 
 
+class _Fit:
+    """The forgotten least-squares sums of one memory and their solution."""
+
+    def __init__(self) -> None:
+        self.H = np.zeros((3, 3))
+        self.g = np.zeros(3)
+        self.yy = 0.0
+        self.n = 0.0
+        self.s1 = np.zeros(3)  # sums of m and |m|^2 and their weight: the field norm for any b
+        self.s2 = 0.0
+        self.w = 0.0
+        self.estimate = np.zeros(3)
+        self.sigma = np.full(3, math.inf)
+        self.residual_rel = math.inf
+        self.norm = 0.0
+        self.determined = False
+
+    def copy(self) -> _Fit:
+        out = _Fit()
+        out.__dict__.update({k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in self.__dict__.items()})
+        return out
+
+    def add(self, lam: float, A: np.ndarray, y: np.ndarray, m: np.ndarray) -> None:
+        """Decay the sums by ``lam`` and add the pair ``A b = y`` and the sample ``m``."""
+        self.H = lam * self.H + A.T @ A
+        self.g = lam * self.g + A.T @ y
+        self.yy = lam * self.yy + float(y @ y)
+        self.n = lam * self.n + 1.0
+        self.s1 = lam * self.s1 + m
+        self.s2 = lam * self.s2 + float(m @ m)
+        self.w = lam * self.w + 1.0
+
+    def solve(self) -> None:
+        """Estimate, its sigma, the model residual and whether it is determined (sigma small, enough pairs)."""
+        try:
+            H_inv = np.linalg.inv(self.H)
+        except np.linalg.LinAlgError:
+            return
+        b = H_inv @ self.g
+        # Field norm at this offset: mean |m - b|^2 from the sums.
+        norm2 = (self.s2 - 2.0 * float(b @ self.s1)) / self.w + float(b @ b) if self.w > 0 else 0.0
+        if not (np.all(np.isfinite(b)) and norm2 > 0):
+            return
+        norm = math.sqrt(norm2)
+        resid = math.sqrt(max(self.yy - float(b @ self.g), 0.0) / max(3.0 * self.n - 3.0, 1.0))
+        s2 = max(resid, RESIDUAL_FLOOR_REL * norm) ** 2
+        self.estimate, self.norm = b, norm
+        self.sigma = np.sqrt(np.maximum(np.diag(H_inv), 0.0) * s2)
+        self.residual_rel = resid / norm
+        self.determined = (self.n >= MIN_PAIRS
+                           and float(np.max(np.linalg.eigvalsh(H_inv))) * s2 < (SIGMA_APPLY_REL * norm) ** 2)
+
+    @property
+    def consistent(self) -> bool:
+        """Determined, and the body-fixed model explains the pairs."""
+        return self.determined and self.residual_rel <= RESIDUAL_MAX_REL
+
+
 class HardIronEstimator:
-    """Recursive least-squares estimate of a body-fixed magnetometer offset from gyro and magnetometer samples."""
+    """Recursive least-squares estimate of a body-fixed magnetometer offset from gyro and magnetometer samples.
+
+    Two memories: ``memory_rad`` (the estimate) and :data:`SHORT_MEMORY_SHARE` of it. When the long one no longer
+    fits (an offset that changed: a magnet attached or taken off) but the short one does, the long one restarts from
+    the short one; when neither fits (a field that changes in the world), nothing new is applied.
+    """
 
     def __init__(self, memory_rad: float = 60.0) -> None:
         if not (isinstance(memory_rad, (int, float)) and math.isfinite(memory_rad) and memory_rad > 0):
             raise ValueError(f'mag_online_memory_rad must be a finite number > 0, got {memory_rad!r}')
         self.memory_rad = float(memory_rad)
-        self._H = np.zeros((3, 3))
-        self._g = np.zeros(3)
-        self._yy = 0.0
-        self._n = 0.0
-        self._s1 = np.zeros(3)  # forgotten sums of m and |m|^2 and their weight: the field norm for any b
-        self._s2 = 0.0
-        self._w = 0.0
-        self._estimate = np.zeros(3)
-        self._sigma = np.full(3, math.inf)
-        self._residual_rel = math.inf
+        self._long = _Fit()
+        self._short = _Fit()
         self._offset: Vec3 = (0.0, 0.0, 0.0)
         self._status = 'not_determined'
         self._restart(-math.inf)
@@ -163,69 +222,61 @@ class HardIronEstimator:
         M = _matrix(r)
         A = np.eye(3) - M
         y = m - M @ m_j
-        lam = math.exp(-self._turn / self.memory_rad)
-        self._turn = 0.0
-        self._H = lam * self._H + A.T @ A
-        self._g = lam * self._g + A.T @ y
-        self._yy = lam * self._yy + float(y @ y)
-        self._n = lam * self._n + 1.0
-        self._s1 = lam * self._s1 + m
-        self._s2 = lam * self._s2 + float(m @ m)
-        self._w = lam * self._w + 1.0
+        turn, self._turn = self._turn, 0.0
+        self._long.add(math.exp(-turn / self.memory_rad), A, y, m)
+        self._short.add(math.exp(-turn / (SHORT_MEMORY_SHARE * self.memory_rad)), A, y, m)
         self._pairs += 1
         if self._pairs % SOLVE_EVERY == 0:
-            self._solve()
+            self._decide()
 
-    def _solve(self) -> None:
-        try:
-            H_inv = np.linalg.inv(self._H)
-        except np.linalg.LinAlgError:
-            return
-        b = H_inv @ self._g
-        if not np.all(np.isfinite(b)):
-            return
-        # Field norm at this offset: mean |m - b|^2 from the forgotten sums.
-        norm2 = (self._s2 - 2.0 * float(b @ self._s1)) / self._w + float(b @ b)
-        if not norm2 > 0:
-            return
-        norm = math.sqrt(norm2)
-        ssr = max(self._yy - float(b @ self._g), 0.0)
-        dof = max(3.0 * self._n - 3.0, 1.0)
-        resid = math.sqrt(ssr / dof)
-        s2 = max(resid, RESIDUAL_FLOOR_REL * norm) ** 2
-        self._estimate = b
-        self._sigma = np.sqrt(np.maximum(np.diag(H_inv), 0.0) * s2)
-        self._residual_rel = resid / norm
-        determined = self._n >= MIN_PAIRS and float(np.max(np.linalg.eigvalsh(H_inv))) * s2 < (SIGMA_APPLY_REL * norm) ** 2
-        if not determined or self._residual_rel > RESIDUAL_MAX_REL:
+    def _decide(self) -> None:
+        """Solve both memories; restart the long one from the short one if only the short one fits; apply."""
+        long, short = self._long, self._short
+        long.solve()
+        short.solve()
+        if short.consistent and long.determined and not long.consistent:
+            # The offset changed (a magnet attached or taken off): the old pairs no longer fit, the recent ones do.
+            self._long = long = short.copy()
+        if not long.consistent:
             # What was applied stays (frozen) rather than follow a disturbance or go back to nothing.
-            self._status = 'tracking' if determined or any(self._offset) else 'not_determined'
+            self._status = 'tracking' if long.determined or self._status != 'not_determined' else 'not_determined'
+            return
+        b = long.estimate
+        o = np.array(self._offset)
+        step = float(np.linalg.norm(b - o))
+        # A first offset (or one back to 0) must be significant: smaller ones are the room's non-uniformity as
+        # much as the sensor's (BROAD's calibrated trials show 1-2.5 uT when translated), left to calibrate-mag.
+        applied = self._status == 'applied' or any(self._offset)
+        minimum = APPLY_STEP_REL * long.norm if applied else APPLY_MIN_REL * long.norm
+        if self._status != 'applied' and not applied and float(np.linalg.norm(b)) < minimum:
+            self._status = 'tracking'
             return
         self._status = 'applied'
-        o = np.array(self._offset)
-        if float(np.linalg.norm(b - o)) > APPLY_STEP_REL * norm:
+        if step > max(minimum, 3.0 * float(np.max(long.sigma))):
             self._offset = (float(b[0]), float(b[1]), float(b[2]))
             self.jumped = True
 
     def status(self) -> HardIronStatus:
         """The estimator's :class:`HardIronStatus`."""
-        e, s = self._estimate, self._sigma
+        f = self._long
+        e, s = f.estimate, f.sigma
         return HardIronStatus(self._status, self._offset, (float(e[0]), float(e[1]), float(e[2])),
-                              (float(s[0]), float(s[1]), float(s[2])), float(self._residual_rel), self.rotation_rad)
+                              (float(s[0]), float(s[1]), float(s[2])), float(f.residual_rel), self.rotation_rad)
 
     def state(self) -> dict[str, Any]:
         """Everything needed to continue after a restart, as plain floats and lists (for a YAML/JSON file)."""
+        f = self._long
         return {
-            'status': self._status, 'offset': list(self._offset), 'estimate': [float(v) for v in self._estimate],
-            'sigma': [float(v) for v in self._sigma], 'information': [float(v) for v in self._H.ravel()],
-            'vector': [float(v) for v in self._g], 'yy': self._yy, 'n': self._n,
-            'sum_m': [float(v) for v in self._s1], 'sum_m2': self._s2, 'weight': self._w,
+            'status': self._status, 'offset': list(self._offset), 'estimate': [float(v) for v in f.estimate],
+            'sigma': [float(v) for v in f.sigma], 'information': [float(v) for v in f.H.ravel()],
+            'vector': [float(v) for v in f.g], 'yy': f.yy, 'n': f.n,
+            'sum_m': [float(v) for v in f.s1], 'sum_m2': f.s2, 'weight': f.w,
             'rotation_rad': self.rotation_rad,
         }
 
     def restore(self, state: dict[str, Any]) -> None:
-        """Continue from :meth:`state`'s output. Raises ValueError (naming the field) on a malformed state; the
-        estimator is unchanged then."""
+        """Continue from :meth:`state`'s output (the short memory starts empty). Raises ValueError (naming the
+        field) on a malformed state; the estimator is unchanged then."""
         try:
             H = np.array(state['information'], dtype=float).reshape(3, 3)
             g = np.array(state['vector'], dtype=float).reshape(3)
@@ -238,9 +289,11 @@ class HardIronEstimator:
         values = np.concatenate((H.ravel(), g, s1, offset, scalars))
         if not np.all(np.isfinite(values)) or status not in STATUSES:
             raise ValueError(f'hard_iron state has a non-finite value or an unknown status {status!r}')
-        self._H, self._g, self._s1 = H, g, s1
-        self._yy, self._n, self._s2, self._w, self.rotation_rad = scalars
+        f = _Fit()
+        f.H, f.g, f.s1 = H, g, s1
+        f.yy, f.n, f.s2, f.w, self.rotation_rad = scalars
+        if f.w > 0:
+            f.solve()
+        self._long, self._short = f, _Fit()
         self._offset = (float(offset[0]), float(offset[1]), float(offset[2]))
         self._status = status
-        if self._w > 0:
-            self._solve()
