@@ -266,6 +266,7 @@ class HardIronEstimator:
     def state(self) -> dict[str, Any]:
         """Everything needed to continue after a restart, as plain floats and lists (for a YAML/JSON file)."""
         f = self._long
+        f.solve()  # the pairs since the latest decision too (what restore() will solve for)
         return {
             'status': self._status, 'offset': list(self._offset), 'estimate': [float(v) for v in f.estimate],
             'sigma': [float(v) for v in f.sigma], 'information': [float(v) for v in f.H.ravel()],
