@@ -160,3 +160,21 @@ def test_broad_30_is_not_worse_and_33_is_better():
     assert on30 <= off30 * 1.001 and s30.offset == (0.0, 0.0, 0.0)  # measured 1.430 both: never applied
     (off33, on33), _ = headings(need_shared(SHARED / '33_disturbed_attached_magnet_2cm'))
     assert on33 < 0.95 * off33  # measured 2.096 vs 2.644 deg (0.79x)
+
+
+def test_the_node_diagnostics_show_the_hard_iron_status(hand):
+    import time
+
+    from ccf_ros.node_support import InputStats, diagnostics
+    from ccf_ros.sync import HoldStats
+
+    hold = HoldStats(0, 0, 0.0, 0.0, False)
+    off = diagnostics(time.monotonic(), InputStats(), ImuEngine(*build({})), hold, use_mag=True, mag_timeout_s=0.5)
+    assert off.values['online hard iron'] == 'off'
+    dist = with_mag_distortion(hand, OFFSET_T)
+    _, eng, _ = run(ON, dist.t_s[:9000], dist.gyr[:9000], dist.acc[:9000], dist.mag[:9000])
+    d = diagnostics(time.monotonic(), InputStats(), eng, hold, use_mag=True, mag_timeout_s=0.5)
+    assert d.values['online hard iron'] == 'applied'
+    x, y, z = (float(v) for v in d.values['online hard-iron offset applied (uT)'].split())
+    assert abs(x - 30.0) < 0.5 and abs(y + 12.0) < 0.5 and abs(z - 8.0) < 0.5
+    assert float(d.values['online hard-iron model residual (share of the field)']) < 0.018
