@@ -113,7 +113,7 @@ DESCRIPTIONS: dict[str, str] = {
     'mag_soft_iron': 'magnetometer soft-iron matrix, row-major 3x3, applied after the offset: m = S (m_raw - b)',
     'mag_online_calibration': 'estimate the magnetometer hard-iron offset while the sensor turns (gyro-paired, a field '
                               'fixed in the world is not followed) and subtract it once determined, after mag_bias_*',
-    'mag_online_memory_rad': 'rotation the online hard-iron estimate remembers, rad (> 0; older pairs fade by '
+    'mag_online_memory_rad': 'rotation the online hard-iron estimate remembers, rad (1 to 1e6; older pairs fade by '
                              'exp(-turn / this))',
     'yaw_offset': 'output turned by yaw_offset - declination about world z (down in ned), rad (imu_tools semantics)',
     'declination': 'local magnetic declination, rad (east positive); see yaw_offset',
