@@ -9,10 +9,13 @@ and shows as a residual. The pairs span up to :data:`MAX_LAG_S` of gyro integrat
 at least :data:`MIN_PAIR_ANGLE_RAD` of turn (a smaller turn says little of ``b``).
 
 Least squares with forgetting by rotation: every pair's information decays by ``exp(-turn / memory_rad)``, so the
-estimate remembers the latest ``memory_rad`` of rotation and nothing is forgotten at rest. The offset is applied once
-its standard deviation is below :data:`SIGMA_APPLY_REL` of the field norm and the residual of the model is below
-:data:`RESIDUAL_MAX_REL` of it (a world-fixed disturbance keeps it from applying, or freezes what was applied).
-Thresholds are relative to the field norm, so the field's unit does not matter.
+estimate remembers the latest ``memory_rad`` of rotation and nothing is forgotten (or learnt) at rest. A second, short
+memory (:data:`SHORT_MEMORY_SHARE`) tells an offset that changed (a magnet attached or taken off: only the recent pairs
+fit) from a field that changes in the world (neither fits). The offset is applied once at least :data:`MIN_PAIRS`
+pairs are in, its largest standard deviation is below :data:`SIGMA_APPLY_REL` of the field norm, the model's residual
+is below :data:`RESIDUAL_MAX_REL` of it and, for a first offset, it is larger than :data:`APPLY_MIN_REL` of it; while
+the model does not fit, nothing new is applied (what was applied stays). Thresholds are relative to the field norm,
+so the field's unit does not matter.
 
 Numpy and the standard library only.
 """
@@ -247,8 +250,8 @@ class HardIronEstimator:
         # A first offset (or one back to 0) must be significant: smaller ones are the room's non-uniformity as
         # much as the sensor's (BROAD's calibrated trials show 1-2.5 uT when translated), left to calibrate-mag.
         applied = self._status == 'applied' or any(self._offset)
-        minimum = APPLY_STEP_REL * long.norm if applied else APPLY_MIN_REL * long.norm
-        if self._status != 'applied' and not applied and float(np.linalg.norm(b)) < minimum:
+        minimum = (APPLY_STEP_REL if applied else APPLY_MIN_REL) * long.norm
+        if not applied and float(np.linalg.norm(b)) < minimum:
             self._status = 'tracking'
             return
         self._status = 'applied'
