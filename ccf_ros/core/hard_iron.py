@@ -47,7 +47,9 @@ SIGMA_APPLY_REL = 0.02
 RESIDUAL_MAX_REL = 0.04
 #: Residual floor in the covariance, fraction of the field norm: not more confident than the sensor's noise.
 RESIDUAL_FLOOR_REL = 0.01
-#: The applied offset moves to the estimate when they differ by more than this fraction of the field norm.
+#: The applied offset follows the estimate when they differ by more than this fraction of the field norm (and 2 sigma).
+APPLY_FOLLOW_REL = 0.002
+#: A change of the applied offset larger than this fraction of the field norm is a jump: the filter is told.
 APPLY_STEP_REL = 0.01
 #: Fewest (forgotten-weighted) pairs before anything is applied (3 s of turning).
 MIN_PAIRS = 30
@@ -250,14 +252,14 @@ class HardIronEstimator:
         # A first offset (or one back to 0) must be significant: smaller ones are the room's non-uniformity as
         # much as the sensor's (BROAD's calibrated trials show 1-2.5 uT when translated), left to calibrate-mag.
         applied = self._status == 'applied' or any(self._offset)
-        minimum = (APPLY_STEP_REL if applied else APPLY_MIN_REL) * long.norm
-        if not applied and float(np.linalg.norm(b)) < minimum:
+        if not applied and float(np.linalg.norm(b)) < APPLY_MIN_REL * long.norm:
             self._status = 'tracking'
             return
         self._status = 'applied'
-        if step > max(minimum, 3.0 * float(np.max(long.sigma))):
+        if step > max(APPLY_FOLLOW_REL * long.norm, 2.0 * float(np.max(long.sigma))):
             self._offset = (float(b[0]), float(b[1]), float(b[2]))
-            self.jumped = True
+            # Refinements are within the filter's disturbance tolerances; a jump is not.
+            self.jumped = step > APPLY_STEP_REL * long.norm
 
     def status(self) -> HardIronStatus:
         """The estimator's :class:`HardIronStatus`."""
