@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
+import math
 import shlex
 import sys
 import tempfile
@@ -159,10 +160,14 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from .offline.simulate import generate, generate_vehicle, write_bag
+    from .offline.simulate import generate, generate_spin, generate_vehicle, with_mag_distortion, write_bag
 
-    make = generate_vehicle if args.motion == 'vehicle' else generate
+    make: Any = {'vehicle': generate_vehicle, 'spin': generate_spin}.get(args.motion, generate)
     data = make(args.duration, args.rate, args.seed)
+    if args.mag_offset_ut is not None:
+        if not all(math.isfinite(v) for v in args.mag_offset_ut):
+            raise ParameterError(f'--mag-offset-ut must be 3 finite numbers of uT, got {args.mag_offset_ut!r}')
+        data = with_mag_distortion(data, [v * 1e-6 for v in args.mag_offset_ut])
     write_bag(data, args.output, overwrite=args.overwrite, storage=args.storage)
     print(f'wrote {args.output}: {len(data.t_s)} samples, {args.duration:g} s at {args.rate:g} Hz, {args.motion} '
           f'motion, seed {args.seed}')
@@ -411,9 +416,11 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument('--duration', type=float, default=60.0, help='duration, s')
     s.add_argument('--rate', type=float, default=286.0, help='IMU and magnetometer rate, Hz')
     s.add_argument('--seed', type=int, default=0, help='random seed (same seed, same bag)')
-    s.add_argument('--motion', choices=('hand', 'vehicle'), default='hand',
-                   help='hand-held motion, or a ground vehicle (accelerations and braking that last seconds, turns, '
-                        'stops, slopes)')
+    s.add_argument('--motion', choices=('hand', 'vehicle', 'spin'), default='hand',
+                   help='hand-held motion, a ground vehicle (accelerations and braking that last seconds, turns, '
+                        'stops, slopes), or a ground robot spinning in place (a magnetometer calibration)')
+    s.add_argument('--mag-offset-ut', type=float, nargs=3, metavar=('X', 'Y', 'Z'),
+                   help='add this hard-iron offset (uT, body frame) to the magnetometer')
     s.add_argument('--overwrite', action='store_true', help='replace an existing output bag')
     s.add_argument('--storage', choices=STORAGES, default='mcap', help='output storage')
     s.set_defaults(func=cmd_simulate)

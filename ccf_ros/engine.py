@@ -13,10 +13,11 @@ import math
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 from .core.base import ANSWERED_BELOW, OrientationFilter, Status, acc_usable, mag_usable
 from .core.ccf import GRAVITY_M_S2, CcfParams
+from .core.hard_iron import HardIronEstimator, HardIronStatus
 from .core.pairing import MagPairer
 from .core.quaternion import WORLD_FRAMES, level_quat, quat_from_acc_mag_scalar, quat_mul_scalar, relevel, to_xyzw
 from .frames import IDENTITY, Mat3, apply, is_identity, matmul, transpose
@@ -99,6 +100,8 @@ class ImuEngine:
         #: warnings about the state file, in order (also passed to :attr:`on_warning` if set)
         self.warnings: list[str] = []
         self.on_warning: Callable[[str], None] | None = None
+        #: online hard-iron estimator (mag_online_calibration; None: off)
+        self.hard_iron: HardIronEstimator | None = None
         self.set_settings(self.settings)
         if self.settings.bias_file:
             self.load_state(self.settings.bias_file)
@@ -129,6 +132,14 @@ class ImuEngine:
         self._remove_g = settings.remove_gravity_vector
         self._stateless = settings.stateless
         self._corrected_rate = settings.bias_corrected_rate
+        if not settings.mag_online_calibration:
+            if self.hard_iron is not None and any(self.hard_iron.status().offset):
+                self.filter.magnetometer_changed()  # the applied offset is gone
+            self.hard_iron = None
+        elif self.hard_iron is None:
+            self.hard_iron = HardIronEstimator(settings.mag_online_memory_rad)
+        else:
+            self.hard_iron.memory_rad = settings.mag_online_memory_rad
 
     def _bank_counts(self) -> None:
         """Add the filter's counters to the engine's totals (before the filter's are reset or it is replaced)."""
@@ -173,6 +184,17 @@ class ImuEngine:
             )
         self.pairer.add(t_s, field)
 
+    def _to_output_frame(self, gyr: Vec3, acc: Vec3) -> tuple[Vec3, Vec3]:
+        """Gyro (offset subtracted) and accelerometer from the IMU's frame into the output frame."""
+        assert self._reframe is not None
+        (r0, r1, r2, r3, r4, r5, r6, r7, r8), (o0, o1, o2) = self._reframe
+        gx, gy, gz = gyr[0] - o0, gyr[1] - o1, gyr[2] - o2
+        gyr = (r0 * gx + r1 * gy + r2 * gz, r3 * gx + r4 * gy + r5 * gz, r6 * gx + r7 * gy + r8 * gz)
+        if self._rot is not None:
+            ax, ay, az = acc
+            acc = (r0 * ax + r1 * ay + r2 * az, r3 * ax + r4 * ay + r5 * az, r6 * ax + r7 * ay + r8 * az)
+        return gyr, acc
+
     def on_imu(self, t_s: float, gyr: Vec3, acc: Vec3) -> Output | None:
         """An IMU message: stamp (s), rate (rad/s), specific force (m/s²).
 
@@ -180,12 +202,7 @@ class ImuEngine:
         """
         self.n_in += 1
         if self._reframe is not None:
-            (r0, r1, r2, r3, r4, r5, r6, r7, r8), (o0, o1, o2) = self._reframe
-            gx, gy, gz = gyr[0] - o0, gyr[1] - o1, gyr[2] - o2
-            gyr = (r0 * gx + r1 * gy + r2 * gz, r3 * gx + r4 * gy + r5 * gz, r6 * gx + r7 * gy + r8 * gz)
-            if self._rot is not None:
-                ax, ay, az = acc
-                acc = (r0 * ax + r1 * ay + r2 * az, r3 * ax + r4 * ay + r5 * az, r6 * ax + r7 * ay + r8 * az)
+            gyr, acc = self._to_output_frame(gyr, acc)
         t_last = self._t_last
         if t_s - t_last > JUMP_AHEAD_S and t_last > -math.inf and t_s - t_last > self.filter.params.max_dt_s:
             t_ahead = self._t_ahead
@@ -211,13 +228,21 @@ class ImuEngine:
             self._n_far_back = 0
             if t_s > self._t_last:
                 self._t_last = t_s
-        mag = self.paired_mag = self.pairer.get(t_s)
+        mag = self.pairer.get(t_s)
         if self._constant_dt > 0.0:
             # Fixed sample period: a synthetic clock advanced per message replaces the header stamps.
             self._t_const += self._constant_dt
             t_s = self._t_const
         self.clock_s = t_s
         f = self.filter
+        hi = self.hard_iron
+        if hi is not None:
+            # Here, where the magnetometer sample meets the gyro: the estimate pairs them, and the sample reaches the
+            # filter with the applied offset subtracted.
+            mag = hi.correct(t_s, gyr, f.gyro_bias, mag)
+            if hi.jumped:
+                f.magnetometer_changed()
+        self.paired_mag = mag
         if self._stateless:
             return self._stateless_output(t_s, gyr, acc, mag)
         status = f.update(t_s, gyr, acc, mag)
@@ -349,6 +374,12 @@ class ImuEngine:
         if state.frame_id and frame_id and state.frame_id != frame_id:
             self._warn(f'bias_file ignored: written for frame_id {state.frame_id!r}, this IMU is {frame_id!r}')
             return
+        hi = state.sections.get('hard_iron')
+        if hi is not None and self.hard_iron is not None:
+            try:
+                self.restore_hard_iron(hi)
+            except (KeyError, TypeError, ValueError) as err:
+                self._warn(f'bias_file: hard_iron section ignored: {err}')
         gb = state.gyro_bias()
         if gb is None:
             return
@@ -370,6 +401,10 @@ class ImuEngine:
         sigma = getattr(self.filter, 'gyro_bias_sigma_rad_s', None)
         st = State(self.sensor_frame_id or '', time.time())
         st.set_gyro_bias((b[0] + o[0], b[1] + o[1], b[2] + o[2]), None if sigma is None else float(sigma))
+        hi = self.hard_iron_state()
+        if hi is not None:
+            # (In the output frame, where the estimator runs; it is restored only for the same frame_id.)
+            st.sections['hard_iron'] = hi
         return st
 
     def save_state(self, path: str | Path) -> None:
@@ -389,6 +424,22 @@ class ImuEngine:
         except (FileNotFoundError, StateFileError):
             pass
         write_state(path, st)
+    def hard_iron_status(self) -> HardIronStatus | None:
+        """The online hard-iron estimator's status (None: mag_online_calibration is off)."""
+        return None if self.hard_iron is None else self.hard_iron.status()
+
+    def hard_iron_state(self) -> dict[str, Any] | None:
+        """The online hard-iron estimator's state as plain values, for a state file (None: it is off)."""
+        return None if self.hard_iron is None else self.hard_iron.state()
+
+    def restore_hard_iron(self, state: dict[str, Any]) -> None:
+        """Continue the online hard-iron estimate from :meth:`hard_iron_state`'s output (ignored when it is off).
+        Raises ValueError on a malformed state (the estimate is unchanged then)."""
+        hi = self.hard_iron
+        if hi is not None:
+            hi.restore(state)
+            if any(hi.status().offset):
+                self.filter.magnetometer_changed()
 
     def counts(self) -> list[int]:
         """Samples per :class:`~ccf_ros.core.base.Status` since this engine was made."""

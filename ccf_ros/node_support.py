@@ -324,5 +324,15 @@ def diagnostics(
         'hold max (ms)': f'{hold.max_ms:.2f}',
         'hold mean (ms)': f'{hold.mean_ms:.3f}',
     }
+    hi = engine.hard_iron_status()
+    if hi is None:
+        values['online hard iron'] = 'off'
+    else:
+        # The field in tesla (sensor_msgs/MagneticField): shown in uT.
+        values['online hard iron'] = hi.status
+        values['online hard-iron offset applied (uT)'] = ' '.join(f'{v * 1e6:.2f}' for v in hi.offset)
+        values['online hard-iron estimate (uT)'] = ' '.join(f'{v * 1e6:.2f}' for v in hi.estimate)
+        values['online hard-iron 1-sigma (uT)'] = ' '.join(f'{v * 1e6:.2f}' for v in hi.sigma)
+        values['online hard-iron model residual (share of the field)'] = f'{hi.residual_rel:.3f}'
     values.update({f'skipped: {k}': str(v) for k, v in engine.skipped_by_reason().items()})
     return Diagnostics(level, message, values)

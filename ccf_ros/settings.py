@@ -37,6 +37,8 @@ ENGINE_DEFAULTS: dict[str, Any] = {
     'output_frame_id': '',
     'gyro_offset_rad_s': (0.0, 0.0, 0.0),
     'bias_file': '',
+    'mag_online_calibration': False,
+    'mag_online_memory_rad': 60.0,
 }
 
 #: Settings only the node uses (replay accepts and ignores them, so one parameters file serves both).
@@ -118,6 +120,10 @@ DESCRIPTIONS: dict[str, str] = {
     'mag_bias_y': 'magnetometer hard-iron offset, y, T',
     'mag_bias_z': 'magnetometer hard-iron offset, z, T',
     'mag_soft_iron': 'magnetometer soft-iron matrix, row-major 3x3, applied after the offset: m = S (m_raw - b)',
+    'mag_online_calibration': 'estimate the magnetometer hard-iron offset while the sensor turns (gyro-paired, a field '
+                              'fixed in the world is not followed) and subtract it once determined, after mag_bias_*',
+    'mag_online_memory_rad': 'rotation the online hard-iron estimate remembers, rad (1 to 1e6; older pairs fade by '
+                             'exp(-turn / this))',
     'yaw_offset': 'output turned by yaw_offset - declination about world z (down in ned), rad (imu_tools semantics)',
     'declination': 'local magnetic declination, rad (east positive); see yaw_offset',
     'remove_gravity_vector': 'publish linear_acceleration with gravity (9.80665 m/s^2, up) removed',
@@ -171,9 +177,12 @@ class AdapterSettings:
     output_frame_id: str = ''
     gyro_offset_rad_s: tuple[float, ...] = (0.0, 0.0, 0.0)
     bias_file: str = ''
+    mag_online_calibration: bool = False
+    mag_online_memory_rad: float = 60.0
 
     def __post_init__(self) -> None:
-        for name in ('mag_timeout_s', 'constant_dt', 'orientation_stddev', 'yaw_offset', 'declination'):
+        for name in ('mag_timeout_s', 'constant_dt', 'orientation_stddev', 'yaw_offset', 'declination',
+                     'mag_online_memory_rad'):
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
                 raise ValueError(f'{name} must be a finite number, got {value!r}')
@@ -187,7 +196,9 @@ class AdapterSettings:
             raise ValueError(f'mag_bias_x/y/z must be finite numbers, got {self.mag_bias!r}')
         if len(self.mag_soft_iron) != 9 or not all(math.isfinite(v) for v in self.mag_soft_iron):
             raise ValueError(f'mag_soft_iron must be 9 finite numbers (row-major 3x3), got {self.mag_soft_iron!r}')
-        for name in ('remove_gravity_vector', 'stateless', 'bias_corrected_rate'):
+        if not 1.0 <= self.mag_online_memory_rad <= 1e6:
+            raise ValueError(f'mag_online_memory_rad must be within [1, 1e6] rad, got {self.mag_online_memory_rad!r}')
+        for name in ('remove_gravity_vector', 'stateless', 'bias_corrected_rate', 'mag_online_calibration'):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f'{name} must be a bool, got {getattr(self, name)!r}')
         rotation_matrix('mount_rotation', self.mount_rotation)
@@ -247,7 +258,8 @@ def _numbers(name: str, value: Any, what: str) -> tuple[float, ...]:
 def adapter_settings(values: Mapping[str, Any]) -> AdapterSettings:
     """:class:`AdapterSettings` from flat settings (missing names keep their defaults; others are ignored)."""
     kw: dict[str, Any] = {}
-    for name in ('mag_timeout_s', 'constant_dt', 'orientation_stddev', 'yaw_offset', 'declination'):
+    for name in ('mag_timeout_s', 'constant_dt', 'orientation_stddev', 'yaw_offset', 'declination',
+                 'mag_online_memory_rad'):
         if name in values:
             kw[name] = _number(name, values[name])
     if any(f'mag_bias_{a}' in values for a in 'xyz'):
@@ -260,7 +272,7 @@ def adapter_settings(values: Mapping[str, Any]) -> AdapterSettings:
         if name in values:
             v = values[name]
             kw[name] = '' if v is None else v  # an empty YAML value is None
-    for name in ('remove_gravity_vector', 'stateless', 'bias_corrected_rate'):
+    for name in ('remove_gravity_vector', 'stateless', 'bias_corrected_rate', 'mag_online_calibration'):
         if name in values:
             kw[name] = _flag(name, values[name])
     return AdapterSettings(**kw)

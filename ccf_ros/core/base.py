@@ -366,3 +366,7 @@ class OrientationFilter(ABC):
         """Start from a known gyro bias (rad/s, body frame) with 1-σ uncertainty ``sigma_rad_s`` (rad/s), e.g. one
         saved by an earlier run; the orientation is kept. Returns False if this filter estimates no bias (ignored)."""
         return False
+
+    def magnetometer_changed(self) -> None:  # noqa: B027 (a hook with a default, not an abstract method)
+        """The magnetometer's calibration changed under the filter (an online hard-iron offset was applied or moved):
+        a filter that learns a reference of the field (norm, dip) can take the new one. No-op by default."""

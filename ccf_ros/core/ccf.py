@@ -1320,4 +1320,16 @@ class QuaternionCcf(OrientationFilter):
             self._gyro_lp = (bx, by, bz)  # the rest low-pass starts from it (as _init does from the bias)
         self._p_bias = (p, 0.0, 0.0, p, 0.0, p)
         self._u_bias = p / self.params.bias_sigma_init_rad_s**2
+        # A bias known this well counts as seen at a rest: a steady rate far from it is a turn (see _rest_agrees).
+        self._bias_rested = p < self.params.bias_sigma_init_rad_s**2
         return True
+
+    def magnetometer_changed(self) -> None:
+        """The magnetometer's calibration changed (online hard iron applied): the disturbance gate's reference field
+        is learnt anew from the next samples instead of rejecting the corrected field for ``mag_reaccept_s``."""
+        if self.initialized:
+            self._forget_mag_reference()
+            # The field's world direction jumps with the offset: its band-pass starts again. (Heading follows over
+            # tau_mag_s: snapping it to the first applied offsets, which are refined for a while, measured worse.)
+            self._mag_band = None
+            self._mag_consistent = True

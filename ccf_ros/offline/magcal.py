@@ -408,13 +408,106 @@ def plot(path: str | Path, raw: ArrayLike, cal: MagCalibration) -> None:
     save_figure(fig, path)
 
 
+#: ``--motion`` choices: tell from the gyro, or force the 3-D (ellipsoid) or planar (ellipse) fit.
+MOTIONS = ('auto', '3d', 'planar')
+
+
+def _motion_axes(args: argparse.Namespace, raw: np.ndarray) -> tuple[str, Any]:
+    """The fit to run (``'3d'`` or ``'planar'``) and the rotation axes (a :class:`~.magfit.RotationAxes`, or None
+    without a gyro), printing which was chosen and why."""
+    from .bagio import read_imu_arrays
+    from .magfit import PLANAR_MAX_OFF_AXIS, RotationAxes, rotation_axes
+
+    axes: RotationAxes | None = None
+    try:
+        imu = read_imu_arrays(args.bag, args.imu_topic, mag_topic=None)
+    except CcfError as err:
+        if args.motion == 'planar':
+            raise CalibrationError(f'--motion planar needs the gyro ({args.imu_topic}): {err}') from err
+        if args.motion == 'auto':
+            print(f'no gyro ({err}): motion from the magnetometer alone')
+    else:
+        dt = np.diff(imu.t_s, prepend=imu.t_s[:1])
+        axes = rotation_axes(imu.gyr, dt, imu.acc)
+        print(f'rotation: {axes.angle_rad:.1f} rad in all, {axes.off_axis:.1%} of it off the principal axis '
+              f'[{axes.axis[0]:+.3f} {axes.axis[1]:+.3f} {axes.axis[2]:+.3f}] (body)')
+    if args.motion != 'auto':
+        print(f'motion: {args.motion} (forced by --motion)')
+        return args.motion, axes
+    if axes is not None:
+        chosen = 'planar' if axes.planar else '3d'
+        rel = 'at most' if axes.planar else 'more than'
+        print(f'motion: {chosen} (auto: {rel} {PLANAR_MAX_OFF_AXIS:.0%} of the rotation off one axis)')
+        return chosen, axes
+    m = raw[np.all(np.isfinite(raw), axis=1) & np.any(raw != 0, axis=1)]
+    spread = np.linalg.svd(m - m.mean(axis=0), compute_uv=False) if len(m) >= 3 else np.ones(3)
+    chosen = 'planar' if spread[2] < 2 * MIN_SPREAD_RATIO * spread[0] else '3d'
+    print(f'motion: {chosen} (auto: the magnetometer samples are {"" if chosen == "planar" else "not "}flat)')
+    return chosen, None
+
+
+def _planar(args: argparse.Namespace, raw: np.ndarray, axes: Any) -> MagCalibration:
+    """The planar fit of ``cmd_calibrate_mag``, reported; returns the 3-D calibration to write."""
+    from .magfit import TURN_COVERAGE_MIN, fit_planar
+
+    if axes is None:
+        m = raw[np.all(np.isfinite(raw), axis=1) & np.any(raw != 0, axis=1)]
+        axis = np.linalg.svd(m - m.mean(axis=0))[2][2]
+        print('axis: the normal of the magnetometer samples\' plane (no gyro: which way is up is unknown)')
+    else:
+        axis = np.array(axes.axis)
+    norm = None if args.field_norm_ut is None else args.field_norm_ut * 1e-6
+    dip = None if args.field_dip_deg is None else math.radians(args.field_dip_deg)
+    if axes is None and (norm is not None or dip is not None):
+        print('warning: without the accelerometer the axis has no sign: --field-norm-ut/--field-dip-deg ignored')
+        norm = dip = None
+    pc = fit_planar(raw, axis, field_norm_t=norm, field_dip_rad=dip, model=args.model, force=args.force)
+    cal = pc.cal
+    b = cal.offset * 1e6
+    print(f'{cal.n_samples} samples from {args.mag_topic}')
+    print(f'planar fit ({pc.model}) about the axis [{pc.axis[0]:+.3f} {pc.axis[1]:+.3f} {pc.axis[2]:+.3f}]: '
+          f'residual {pc.residual_t * 1e6:.3f} uT RMS in the plane, turn coverage {pc.turn_coverage:.0%}, '
+          f'horizontal radius {pc.radius_t * 1e6:.3f} uT')
+    print(f'offset b [uT]: {b[0]:.3f} {b[1]:.3f} {b[2]:.3f}')
+    if pc.axial_source == 'none':
+        print('offset along the axis: not determined by turning about it, left at 0 (give --field-norm-ut and/or '
+              '--field-dip-deg to fit it)')
+    else:
+        print(f'offset along the axis: {pc.axial_offset_t * 1e6:.3f} uT (from the field {pc.axial_source})')
+    print('soft iron S (m_cal = S (m_raw - b)), in the plane only:')
+    for row in cal.matrix:
+        print('  ' + ' '.join(f'{v:9.5f}' for v in row))
+    if pc.turn_coverage < TURN_COVERAGE_MIN:
+        print(f'warning: turn coverage {pc.turn_coverage:.0%} is low: turn full circles and record again')
+    return cal
+
+
 def cmd_calibrate_mag(args: argparse.Namespace) -> int:
-    """Read, fit, report, write the parameters YAML (atomically) and optionally the plot."""
+    """Read, fit (3-D or planar, see ``--motion``), report, write the parameters YAML (atomically), optionally plot."""
     out = Path(args.output)
     refuse_existing(out, args.overwrite, bag=False)  # before the slow part, not after
     if args.field_norm_ut is not None and not (math.isfinite(args.field_norm_ut) and args.field_norm_ut > 0):
         raise ParameterError(f'--field-norm-ut must be a positive number of uT, got {args.field_norm_ut!r}')
+    if args.field_dip_deg is not None and not (math.isfinite(args.field_dip_deg) and abs(args.field_dip_deg) < 89.9):
+        raise ParameterError(f'--field-dip-deg must be a number within (-90, 90) deg, got {args.field_dip_deg!r}')
     raw = read_mag(args.bag, args.mag_topic)
+    motion, axes = ('3d', None) if args.motion == '3d' else _motion_axes(args, raw)
+    cal = _planar(args, raw, axes) if motion == 'planar' else _fit_3d(args, raw)
+    # Staged and renamed: a reader (or a crash) never sees half a file.
+    with staged(out, bag=False) as tmp:
+        try:
+            tmp.write_text(params_yaml(cal))
+        except OSError as err:
+            raise CcfError(f'cannot write {out}: {err.strerror}') from err
+    print(f'wrote {out}')
+    if args.plot:
+        plot(args.plot, raw, cal)
+        print(f'plot: {args.plot}')
+    return 0
+
+
+def _fit_3d(args: argparse.Namespace, raw: np.ndarray) -> MagCalibration:
+    """The 3-D (ellipsoid) fit of ``cmd_calibrate_mag``, reported; refuses low coverage unless ``--force``."""
     field_norm_t = None if args.field_norm_ut is None else args.field_norm_ut * 1e-6
     cal = fit(raw, field_norm_t=field_norm_t, model=args.model)
     b = cal.offset * 1e6
@@ -444,26 +537,18 @@ def cmd_calibrate_mag(args: argparse.Namespace) -> int:
             # An offset along directions the recording never turned through is a guess: on BROAD trial 16 (12 %)
             # the file written would have raised the heading error from 0.48 to 3.35 deg.
             raise CalibrationError(f'coverage {cal.coverage:.0%} of directions is below {COVERAGE_WARN:.0%}: the '
-                                   f'offset is not determined; {advice} (or --force to write it anyway)')
+                                   f'offset is not determined; {advice} (or --force to write it anyway; a robot '
+                                   'that can only turn about one axis: --motion planar)')
         print(f'warning: coverage {cal.coverage:.0%} is low: {advice}')
-    # Staged and renamed: a reader (or a crash) never sees half a file.
-    with staged(out, bag=False) as tmp:
-        try:
-            tmp.write_text(params_yaml(cal))
-        except OSError as err:
-            raise CcfError(f'cannot write {out}: {err.strerror}') from err
-    print(f'wrote {out}')
-    if args.plot:
-        plot(args.plot, raw, cal)
-        print(f'plot: {args.plot}')
-    return 0
+    return cal
 
 
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     """Register ``calibrate-mag`` on an ``add_subparsers()`` object; returns the new parser."""
     p: argparse.ArgumentParser = subparsers.add_parser(
         'calibrate-mag',
-        help='fit magnetometer hard-/soft-iron calibration from a bag, write a parameters YAML',
+        help='fit magnetometer hard-/soft-iron calibration from a bag (3-D, or planar for a robot turning about one '
+        'axis), write a parameters YAML',
         description='Fit m_cal = S (m_raw - b) to the magnetometer samples of a bag: b hard-iron offset, '
         'S symmetric soft-iron matrix (kept only where the data show one, see --model); radius = --field-norm-ut '
         'if given, else det S = 1.',
@@ -478,8 +563,18 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument('--model', choices=MODELS, default='auto',
                    help='ellipsoid: offset and soft-iron matrix; offset: offset only; auto: the soft-iron matrix '
                    f'only where it lowers the RMS scatter below {SOFT_IRON_MIN_GAIN:g} x the offset-only fit\'s')
+    p.add_argument('--imu-topic', default='/imu/data_raw',
+                   help='sensor_msgs/Imu topic: its gyro tells the motion (--motion auto), its accelerometer up')
+    p.add_argument('--motion', choices=MOTIONS, default='auto',
+                   help='3d: ellipsoid fit (needs a sensor turned through all orientations); planar: ellipse fit in '
+                   'the plane of a turn about one axis (a ground robot spinning in place); auto: planar where at most '
+                   '10 %% of the rotation is off one axis')
+    p.add_argument('--field-dip-deg', type=float, metavar='DEG',
+                   help='planar: local field dip (inclination), deg, > 0 where it points down; with or without '
+                   '--field-norm-ut it gives the offset along the turning axis (else left at 0)')
     p.add_argument('--overwrite', action='store_true', help='replace an existing output file')
     p.add_argument('--force', action='store_true',
-                   help=f'write the calibration even if the coverage is below {COVERAGE_WARN * 100:.0f} %%')
+                   help=f'write the calibration even if the coverage is below {COVERAGE_WARN * 100:.0f} %% '
+                   '(planar: the turn coverage below 75 %%)')
     p.set_defaults(func=cmd_calibrate_mag)
     return p

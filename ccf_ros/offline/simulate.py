@@ -352,6 +352,65 @@ def generate_swing(
     return SimData(t_s=t0_s + tr, q_true=q, gyr=gyr, acc=acc, mag=mag, bias=bias, moving=tr >= rest_s)
 
 
+def generate_spin(
+    duration_s: float = 60.0,
+    rate_hz: float = 100.0,
+    seed: int = 0,
+    *,
+    rest_s: float = 5.0,
+    spin_rad_s: tuple[float, float] = (0.4, 0.8),
+    wobble_rad: float = np.radians(1.0),
+    gyro_noise_rad_s: float = 0.005,
+    acc_noise_m_s2: float = 0.05,
+    mag_noise_t: float = 0.5e-6,
+    bias_init_rad_s: float = np.radians(0.3),
+    bias_walk_rad_s_sqrt_s: float = 2e-4,
+    t0_s: float = 1.7e9,
+) -> SimData:
+    """A ground robot spinning in place (a magnetometer calibration by turning): after ``rest_s`` it turns about the
+    vertical at ``spin_rad_s`` (range, rad/s; a new rate and direction every 8-15 s, changed smoothly), rocking by
+    ``wobble_rad`` (rad) in roll and pitch on its wheels; the IMU sits 0.1 m off the turning axis (centripetal
+    acceleration). Deterministic for a seed; the same noise and bias model as :func:`generate`."""
+    n = _sample_count(duration_s, rate_hz, seed)
+    rng = np.random.default_rng(seed)
+    dt = 1.0 / rate_hz
+    tr = np.arange(n) * dt
+    rate = np.zeros(n)
+    t = rest_s
+    sign = rng.choice([-1.0, 1.0])
+    while t < duration_s:
+        t_next = t + rng.uniform(8.0, 15.0)
+        rate[(tr >= t) & (tr < t_next)] = sign * rng.uniform(*spin_rad_s)
+        sign = -sign if rng.uniform() < 0.5 else sign
+        t = t_next
+    m = max(1, int(round(1.0 * rate_hz)))  # the rate changes over ~1 s
+    rate = np.convolve(rate, np.ones(m) / m, 'same') * (tr >= rest_s)
+    yaw = np.cumsum(rate) * dt + rng.uniform(-np.pi, np.pi)
+    ramp = _ramp(tr, rest_s)
+    roll = wobble_rad * ramp * np.sin(2 * np.pi * rng.uniform(0.2, 0.5) * tr + rng.uniform(0, 6.3))
+    pitch = wobble_rad * ramp * np.sin(2 * np.pi * rng.uniform(0.2, 0.5) * tr + rng.uniform(0, 6.3))
+    q = euler_to_quat(roll, pitch, yaw)
+    dq = np.gradient(q, dt, axis=0)
+    omega = 2.0 * quat_mul(quat_conj(q), dq)[:, 1:]
+    lever = 0.1
+    pos = lever * np.stack((np.cos(yaw), np.sin(yaw), 0 * yaw), axis=1)
+    acc_world = np.gradient(np.gradient(pos, dt, axis=0), dt, axis=0) + [0.0, 0.0, G]
+    gyr, acc, mag, bias = _sense(
+        rng, q, omega, acc_world, tr, rate_hz, gyro_noise_rad_s=gyro_noise_rad_s, acc_noise_m_s2=acc_noise_m_s2,
+        mag_noise_t=mag_noise_t, bias_init_rad_s=bias_init_rad_s, bias_walk_rad_s_sqrt_s=bias_walk_rad_s_sqrt_s,
+    )
+    return SimData(t_s=t0_s + tr, q_true=q, gyr=gyr, acc=acc, mag=mag, bias=bias, moving=tr >= rest_s)
+
+
+def with_mag_distortion(data: SimData, offset_t: Any, soft_iron: Any = None) -> SimData:
+    """``data`` with its magnetometer read through hard and soft iron: ``W m + offset_t`` (offset (3,) T, ``W``
+    ``soft_iron`` (3, 3); None: the identity). The noise is distorted with the field (it is added before)."""
+    w = np.eye(3) if soft_iron is None else np.asarray(soft_iron, dtype=float).reshape(3, 3)
+    mag = data.mag @ w.T + np.asarray(offset_t, dtype=float).reshape(3)
+    return SimData(t_s=data.t_s, q_true=data.q_true, gyr=data.gyr, acc=data.acc, mag=mag, bias=data.bias,
+                   moving=data.moving)
+
+
 def write_bag(data: SimData, path: str | Path, *, overwrite: bool = False, storage: str = 'mcap') -> None:
     """Write ``data`` as a rosbag2 with /imu/mag, /imu/data_raw, /ground_truth/pose, /ground_truth/moving.
 

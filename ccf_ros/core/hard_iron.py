@@ -1,0 +1,305 @@
+"""Online hard-iron estimation: the magnetometer offset that turns with the body, told from a field fixed in the world.
+
+Model: ``m_k = R_k^T f + b`` with ``b`` the offset (body frame), ``f`` the field in the world and ``R_k`` the
+orientation (body -> world). Between two samples ``j`` and ``k`` the gyro gives the body's turn ``M = R_k^T R_j``,
+and ``m_k - b = M (m_j - b)`` whatever ``f`` is: ``(I - M) b = m_k - M m_j``, linear in ``b``, free of the heading
+(no circularity with the filter's own magnetometer use) and of the world field. A body-fixed offset satisfies it at
+every pair; a field that changes in the world as the sensor moves (a magnet in the room, steel in the floor) does not,
+and shows as a residual. The pairs span up to :data:`MAX_LAG_S` of gyro integration (its bias drift stays small) and
+at least :data:`MIN_PAIR_ANGLE_RAD` of turn (a smaller turn says little of ``b``).
+
+Least squares with forgetting by rotation: every pair's information decays by ``exp(-turn / memory_rad)``, so the
+estimate remembers the latest ``memory_rad`` of rotation and nothing is forgotten (or learnt) at rest. A second, short
+memory (:data:`SHORT_MEMORY_SHARE`) tells an offset that changed (a magnet attached or taken off: only the recent pairs
+fit) from a field that changes in the world (neither fits). The offset is applied once at least :data:`MIN_PAIRS`
+pairs are in, its largest standard deviation is below :data:`SIGMA_APPLY_REL` of the field norm, the model's residual
+is below :data:`RESIDUAL_MAX_REL` of it and, for a first offset, it is larger than :data:`APPLY_MIN_REL` of it; while
+the model does not fit, nothing new is applied (what was applied stays). Thresholds are relative to the field norm,
+so the field's unit does not matter.
+
+Numpy and the standard library only.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from typing import Any, NamedTuple
+
+import numpy as np
+
+Vec3 = tuple[float, float, float]
+Quat = tuple[float, float, float, float]
+
+#: Pairs are at most this far apart, s (gyro drift: 0.3 deg/s of bias over 1 s is 0.3 % of the field).
+MAX_LAG_S = 1.0
+#: ... and turned at least this much relative to each other, rad.
+MIN_PAIR_ANGLE_RAD = 0.15
+#: One pair per this period, s (cost; neighbouring samples add little).
+UPDATE_PERIOD_S = 0.1
+#: The estimate is solved for (and the decision taken) every this many pairs.
+SOLVE_EVERY = 5
+#: A gap in the IMU stream longer than this (s) restarts the gyro integration (no pair spans it).
+MAX_DT_S = 0.5
+#: Applied once the largest standard deviation of the estimate is below this fraction of the field norm.
+SIGMA_APPLY_REL = 0.02
+#: ... and the model's RMS residual per axis below this fraction of the field norm (else: a world-fixed disturbance).
+RESIDUAL_MAX_REL = 0.04
+#: Residual floor in the covariance, fraction of the field norm: not more confident than the sensor's noise.
+RESIDUAL_FLOOR_REL = 0.01
+#: The applied offset follows the estimate when they differ by more than this fraction of the field norm (and 2 sigma).
+APPLY_FOLLOW_REL = 0.002
+#: A change of the applied offset larger than this fraction of the field norm is a jump: the filter is told.
+APPLY_STEP_REL = 0.01
+#: Fewest (forgotten-weighted) pairs before anything is applied (3 s of turning).
+MIN_PAIRS = 30
+#: The short memory (which tells a changed offset) is this share of ``memory_rad``.
+SHORT_MEMORY_SHARE = 0.2
+#: A first offset is applied only if larger than this fraction of the field norm (see ``_decide``).
+APPLY_MIN_REL = 0.06
+#: Statuses of :class:`HardIronStatus`.
+STATUSES = ('not_determined', 'tracking', 'applied')
+
+
+class HardIronStatus(NamedTuple):
+    """status: ``'not_determined'`` (too little rotation: the estimate's sigma is above the threshold),
+    ``'tracking'`` (determined, but the body-fixed model does not hold: a world-fixed disturbance; nothing new is
+    applied) or ``'applied'`` (the applied offset follows the estimate). offset: applied offset (field unit);
+    estimate: latest estimate; sigma: its standard deviations; residual_rel: RMS model residual per axis over the
+    field norm; rotation_rad: rotation the estimate has seen (total, not forgotten)."""
+
+    status: str
+    offset: Vec3
+    estimate: Vec3
+    sigma: Vec3
+    residual_rel: float
+    rotation_rad: float
+
+
+def _mul(a: Quat, b: Quat) -> Quat:
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return (aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw)
+
+
+def _matrix(q: Quat) -> np.ndarray:
+    """Rotation matrix (3, 3) of unit quaternion ``q`` [w, x, y, z]."""
+    w, x, y, z = q
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+class _Fit:
+    """The forgotten least-squares sums of one memory and their solution."""
+
+    def __init__(self) -> None:
+        self.H = np.zeros((3, 3))
+        self.g = np.zeros(3)
+        self.yy = 0.0
+        self.n = 0.0
+        self.s1 = np.zeros(3)  # sums of m and |m|^2 and their weight: the field norm for any b
+        self.s2 = 0.0
+        self.w = 0.0
+        self.estimate = np.zeros(3)
+        self.sigma = np.full(3, math.inf)
+        self.residual_rel = math.inf
+        self.norm = 0.0
+        self.determined = False
+
+    def copy(self) -> _Fit:
+        out = _Fit()
+        out.__dict__.update({k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in self.__dict__.items()})
+        return out
+
+    def add(self, lam: float, A: np.ndarray, y: np.ndarray, m: np.ndarray) -> None:
+        """Decay the sums by ``lam`` and add the pair ``A b = y`` and the sample ``m``."""
+        self.H = lam * self.H + A.T @ A
+        self.g = lam * self.g + A.T @ y
+        self.yy = lam * self.yy + float(y @ y)
+        self.n = lam * self.n + 1.0
+        self.s1 = lam * self.s1 + m
+        self.s2 = lam * self.s2 + float(m @ m)
+        self.w = lam * self.w + 1.0
+
+    def solve(self) -> None:
+        """Estimate, its sigma, the model residual and whether it is determined (sigma small, enough pairs)."""
+        try:
+            H_inv = np.linalg.inv(self.H)
+        except np.linalg.LinAlgError:
+            return
+        b = H_inv @ self.g
+        # Field norm at this offset: mean |m - b|^2 from the sums.
+        norm2 = (self.s2 - 2.0 * float(b @ self.s1)) / self.w + float(b @ b) if self.w > 0 else 0.0
+        if not (np.all(np.isfinite(b)) and norm2 > 0):
+            return
+        norm = math.sqrt(norm2)
+        resid = math.sqrt(max(self.yy - float(b @ self.g), 0.0) / max(3.0 * self.n - 3.0, 1.0))
+        s2 = max(resid, RESIDUAL_FLOOR_REL * norm) ** 2
+        self.estimate, self.norm = b, norm
+        self.sigma = np.sqrt(np.maximum(np.diag(H_inv), 0.0) * s2)
+        self.residual_rel = resid / norm
+        self.determined = (self.n >= MIN_PAIRS
+                           and float(np.max(np.linalg.eigvalsh(H_inv))) * s2 < (SIGMA_APPLY_REL * norm) ** 2)
+
+    @property
+    def consistent(self) -> bool:
+        """Determined, and the body-fixed model explains the pairs."""
+        return self.determined and self.residual_rel <= RESIDUAL_MAX_REL
+
+
+class HardIronEstimator:
+    """Recursive least-squares estimate of a body-fixed magnetometer offset from gyro and magnetometer samples.
+
+    Two memories: ``memory_rad`` (the estimate) and :data:`SHORT_MEMORY_SHARE` of it. When the long one no longer
+    fits (an offset that changed: a magnet attached or taken off) but the short one does, the long one restarts from
+    the short one; when neither fits (a field that changes in the world), nothing new is applied.
+    """
+
+    def __init__(self, memory_rad: float = 60.0) -> None:
+        if not (isinstance(memory_rad, (int, float)) and math.isfinite(memory_rad) and memory_rad > 0):
+            raise ValueError(f'mag_online_memory_rad must be a finite number > 0, got {memory_rad!r}')
+        self.memory_rad = float(memory_rad)
+        self._long = _Fit()
+        self._short = _Fit()
+        self._offset: Vec3 = (0.0, 0.0, 0.0)
+        self._status = 'not_determined'
+        self._restart(-math.inf)
+        self.rotation_rad = 0.0
+        self._pairs = 0
+        #: the applied offset changed at the latest :meth:`correct` (the caller tells its filter)
+        self.jumped = False
+
+    def _restart(self, t_s: float) -> None:
+        """Forget the gyro integration (a gap, a clock jump); the estimate is kept."""
+        self._t = t_s
+        self._q: Quat = (1.0, 0.0, 0.0, 0.0)
+        self._history: deque[tuple[float, Quat, np.ndarray]] = deque()
+        self._t_update = -math.inf
+        self._turn = 0.0  # rotation since the last accumulated pair, rad
+
+    def correct(self, t_s: float, gyr: Vec3, bias: Vec3, mag: Vec3 | None) -> Vec3 | None:
+        """One IMU sample: stamp (s), gyro (rad/s) and its bias estimate (rad/s), the paired magnetometer sample (or
+        None). Returns the magnetometer sample minus the applied offset (None if none); sets :attr:`jumped`."""
+        self.jumped = False
+        dt = t_s - self._t
+        if not 0.0 < dt <= MAX_DT_S:
+            if dt != 0.0:
+                self._restart(t_s)
+        else:
+            self._t = t_s
+            hx, hy, hz = (gyr[0] - bias[0]) * dt * 0.5, (gyr[1] - bias[1]) * dt * 0.5, (gyr[2] - bias[2]) * dt * 0.5
+            if hx - hx == 0.0 and hy - hy == 0.0 and hz - hz == 0.0:  # finite
+                qw, qx, qy, qz = self._q  # q (1, h) inlined: this runs at every IMU sample
+                w = qw - qx * hx - qy * hy - qz * hz
+                x = qx + qw * hx + qy * hz - qz * hy
+                y = qy + qw * hy - qx * hz + qz * hx
+                z = qz + qw * hz + qx * hy - qy * hx
+                n = 1.0 / math.sqrt(w * w + x * x + y * y + z * z)
+                self._q = (w * n, x * n, y * n, z * n)
+                step = 2.0 * math.sqrt(hx * hx + hy * hy + hz * hz)
+                self._turn += step
+                self.rotation_rad += step
+        if mag is None:
+            return None
+        if t_s - self._t_update >= UPDATE_PERIOD_S and all(math.isfinite(v) for v in mag):
+            self._t_update = t_s
+            self._update(t_s, np.array(mag, dtype=float))
+        o = self._offset
+        return (mag[0] - o[0], mag[1] - o[1], mag[2] - o[2])
+
+    def _update(self, t_s: float, m: np.ndarray) -> None:
+        """Pair ``m`` with the oldest stored sample within :data:`MAX_LAG_S`, accumulate, re-solve, decide."""
+        hist = self._history
+        while hist and t_s - hist[0][0] > MAX_LAG_S:
+            hist.popleft()
+        q = self._q
+        hist.append((t_s, q, m))
+        if len(hist) < 2:
+            return
+        _, q_j, m_j = hist[0]
+        r = _mul((q[0], -q[1], -q[2], -q[3]), q_j)  # body j -> body k
+        if 2.0 * math.acos(min(1.0, abs(r[0]))) < MIN_PAIR_ANGLE_RAD:
+            return
+        M = _matrix(r)
+        A = np.eye(3) - M
+        y = m - M @ m_j
+        turn, self._turn = self._turn, 0.0
+        self._long.add(math.exp(-turn / self.memory_rad), A, y, m)
+        self._short.add(math.exp(-turn / (SHORT_MEMORY_SHARE * self.memory_rad)), A, y, m)
+        self._pairs += 1
+        if self._pairs % SOLVE_EVERY == 0:
+            self._decide()
+
+    def _decide(self) -> None:
+        """Solve both memories; restart the long one from the short one if only the short one fits; apply."""
+        long, short = self._long, self._short
+        long.solve()
+        short.solve()
+        if short.consistent and long.determined and not long.consistent:
+            # The offset changed (a magnet attached or taken off): the old pairs no longer fit, the recent ones do.
+            self._long = long = short.copy()
+        if not long.consistent:
+            # What was applied stays (frozen) rather than follow a disturbance or go back to nothing.
+            self._status = 'tracking' if long.determined or self._status != 'not_determined' else 'not_determined'
+            return
+        b = long.estimate
+        o = np.array(self._offset)
+        step = float(np.linalg.norm(b - o))
+        # A first offset (or one back to 0) must be significant: smaller ones are the room's non-uniformity as
+        # much as the sensor's (BROAD's calibrated trials show 1-2.5 uT when translated), left to calibrate-mag.
+        applied = self._status == 'applied' or any(self._offset)
+        if not applied and float(np.linalg.norm(b)) < APPLY_MIN_REL * long.norm:
+            self._status = 'tracking'
+            return
+        self._status = 'applied'
+        if step > max(APPLY_FOLLOW_REL * long.norm, 2.0 * float(np.max(long.sigma))):
+            self._offset = (float(b[0]), float(b[1]), float(b[2]))
+            # Refinements are within the filter's disturbance tolerances; a jump is not.
+            self.jumped = step > APPLY_STEP_REL * long.norm
+
+    def status(self) -> HardIronStatus:
+        """The estimator's :class:`HardIronStatus`."""
+        f = self._long
+        e, s = f.estimate, f.sigma
+        return HardIronStatus(self._status, self._offset, (float(e[0]), float(e[1]), float(e[2])),
+                              (float(s[0]), float(s[1]), float(s[2])), float(f.residual_rel), self.rotation_rad)
+
+    def state(self) -> dict[str, Any]:
+        """Everything needed to continue after a restart, as plain floats and lists (for a YAML/JSON file)."""
+        f = self._long
+        f.solve()  # the pairs since the latest decision too (what restore() will solve for)
+        return {
+            'status': self._status, 'offset': list(self._offset), 'estimate': [float(v) for v in f.estimate],
+            'sigma': [float(v) for v in f.sigma], 'information': [float(v) for v in f.H.ravel()],
+            'vector': [float(v) for v in f.g], 'yy': f.yy, 'n': f.n,
+            'sum_m': [float(v) for v in f.s1], 'sum_m2': f.s2, 'weight': f.w,
+            'rotation_rad': self.rotation_rad,
+        }
+
+    def restore(self, state: dict[str, Any]) -> None:
+        """Continue from :meth:`state`'s output (the short memory starts empty). Raises ValueError (naming the
+        field) on a malformed state; the estimator is unchanged then."""
+        try:
+            H = np.array(state['information'], dtype=float).reshape(3, 3)
+            g = np.array(state['vector'], dtype=float).reshape(3)
+            s1 = np.array(state['sum_m'], dtype=float).reshape(3)
+            offset = np.array(state['offset'], dtype=float).reshape(3)
+            scalars = [float(state[k]) for k in ('yy', 'n', 'sum_m2', 'weight', 'rotation_rad')]
+            status = str(state['status'])
+        except (KeyError, TypeError, ValueError) as err:
+            raise ValueError(f'hard_iron state is malformed: {err!r}') from None
+        values = np.concatenate((H.ravel(), g, s1, offset, scalars))
+        if not np.all(np.isfinite(values)) or status not in STATUSES:
+            raise ValueError(f'hard_iron state has a non-finite value or an unknown status {status!r}')
+        f = _Fit()
+        f.H, f.g, f.s1 = H, g, s1
+        f.yy, f.n, f.s2, f.w, self.rotation_rad = scalars
+        if f.w > 0:
+            f.solve()
+        self._long, self._short = f, _Fit()
+        self._offset = (float(offset[0]), float(offset[1]), float(offset[2]))
+        self._status = status
