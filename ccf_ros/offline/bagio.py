@@ -73,14 +73,23 @@ def open_bag(path: str | Path) -> Iterator[AnyReader]:
 
 
 def read_messages(
-    reader: AnyReader, path: str | Path, connections: Iterable[Connection] | None = None
+    reader: AnyReader, path: str | Path, connections: Iterable[Connection] | None = None, *, fast: bool = False
 ) -> Iterator[tuple[Connection, int, bytes]]:
     """``(connection, t_rec_ns, raw)`` of ``reader.messages(connections)``; a read failure is a :class:`BagError`.
 
+    ``fast``: read a single-file MCAP bag with :func:`~ccf_ros.offline.mcap.fast_messages` (same messages, same
+    order; ``raw`` is a memoryview into the chunk, valid as long as it is referenced), else through rosbags.
     Only the reading is guarded: what the caller does with a message (between two ``next``) is not.
     """
+    conns = list(connections) if connections is not None else list(reader.connections)
     try:
-        it = reader.messages(connections=list(connections) if connections is not None else ())
+        it: Iterator[Any] | None = None
+        if fast:
+            from .mcap import fast_messages
+
+            it = fast_messages(reader, conns)
+        if it is None:
+            it = reader.messages(connections=conns)
     except Exception as err:
         raise unreadable(path, err) from err
     while True:
@@ -120,6 +129,7 @@ class BagWriter:
     def __init__(self, writer: Writer, path: Path) -> None:
         self.writer = writer
         self.path = path
+        self._write: Callable[[Connection, int, bytes | memoryview], None] | None = None
 
     def add_connection(self, topic: str, msgtype: str, **kwargs: Any) -> Connection:
         try:
@@ -136,9 +146,16 @@ class BagWriter:
     @contextmanager
     def guarded(self) -> Iterator[Callable[[Connection, int, bytes | memoryview], None]]:
         """rosbags' own ``write``, for a tight loop of writes under one guard instead of one per message: a
-        file-system failure in the ``with`` body is a :class:`BagError` (keep other I/O out of the body)."""
+        file-system failure in the ``with`` body is a :class:`BagError` (keep other I/O out of the body).
+
+        For MCAP it is :func:`~ccf_ros.offline.mcap.fast_writer` (the same bytes, without rosbags' per-message
+        checks: write only to connections added with :meth:`add_connection`)."""
+        if self._write is None:
+            from .mcap import fast_writer
+
+            self._write = fast_writer(self.writer)
         try:
-            yield self.writer.write
+            yield self._write
         except _WRITE_ERRORS as err:
             raise self._error(err) from err
 

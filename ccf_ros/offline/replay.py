@@ -342,7 +342,7 @@ class _Replayer:
         ros1 = not self._reader.is2
         block: list[_Entry] = []
         add = block.append
-        for conn, t_rec, raw in read_messages(self._reader, self._bag, self._inputs):
+        for conn, t_rec, raw in read_messages(self._reader, self._bag, self._inputs, fast=True):
             cid = conn.id
             if cid in copies:
                 cdr = ros1_to_cdr(self._store, raw, conn.msgtype, self._bag) if ros1 else raw
