@@ -24,8 +24,10 @@ from .errors import BagError, CcfError, ParameterError
 
 #: The magnetometer topic read when ``--mag-topic`` is not given (a bag without it runs 6-D, with a warning).
 DEFAULT_MAG_TOPIC = '/imu/mag'
-MAG_TOPIC_HELP = (f'sensor_msgs/MagneticField input topic (if not given: {DEFAULT_MAG_TOPIC}, 6-D with a warning if '
-                  'the bag has none; a topic given here must be in the bag)')
+MAG_TOPIC_HELP = ('sensor_msgs/MagneticField input topic (if not given: the bag\'s one MagneticField topic, of '
+                  f'several {DEFAULT_MAG_TOPIC}; 6-D with a warning if the bag has none; a topic given here must be in '
+                  'the bag)')
+IMU_TOPIC_HELP = ("sensor_msgs/Imu input topic (if not given: the bag's one Imu topic, of several /imu/data_raw)")
 
 
 class HelpFormatter(argparse.RawDescriptionHelpFormatter):
@@ -108,8 +110,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
         args.output,
         engine,
         imu_topic=args.imu_topic,
-        mag_topic=None if args.no_mag else (args.mag_topic or DEFAULT_MAG_TOPIC),
-        mag_required=args.mag_topic is not None,
+        mag_topic=args.mag_topic,
+        detect=True,
+        no_mag=args.no_mag,
         storage=args.storage,
         copy_input=args.copy_input,
         overwrite=args.overwrite,
@@ -374,7 +377,7 @@ def build_parser() -> argparse.ArgumentParser:
     r = add('replay', 'run the filter over a bag, write /imu/data and /imu/gyro_bias to a new bag')
     r.add_argument('bag', help='input: rosbag2 directory (mcap or sqlite3) or ROS 1 .bag')
     r.add_argument('-o', '--output', required=True, help='output rosbag2 directory')
-    r.add_argument('--imu-topic', default='/imu/data_raw', help='sensor_msgs/Imu input topic')
+    r.add_argument('--imu-topic', help=IMU_TOPIC_HELP)
     r.add_argument('--mag-topic', help=MAG_TOPIC_HELP)
     r.add_argument('--no-mag', action='store_true', help='ignore the magnetometer (6-D filter)')
     r.add_argument('--params-file', action='append', metavar='FILE',

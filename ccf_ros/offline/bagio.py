@@ -30,7 +30,7 @@ if TYPE_CHECKING:  # rosbags is imported when a bag is opened, not with this mod
     from rosbags.typesys.store import Typestore
 
 __all__ = [
-    'BagError', 'BagWriter', 'ImuArrays', 'connections_for', 'deserialize', 'in_bag_order', 'open_bag', 'open_writer',
+    'BagError', 'BagWriter', 'ImuArrays', 'connections_for', 'deserialize', 'detect_topics', 'in_bag_order', 'open_bag', 'open_writer',
     'read_bools', 'read_imu_arrays', 'read_messages', 'read_orientations', 'read_topic', 'refuse_existing', 'ros1_to_cdr',
     'staged', 'stamp_s', 'typestore', 'unreadable',
 ]
@@ -268,6 +268,50 @@ def connections_for(
         if msgtype is not None and c.msgtype != msgtype:
             raise BagError(f'topic {topic} is {c.msgtype}, expected {msgtype}')
     return conns
+
+
+IMU_TYPE = 'sensor_msgs/msg/Imu'
+MAG_TYPE = 'sensor_msgs/msg/MagneticField'
+#: The topics read when a bag has several of a type and none is named (imu_tools' names).
+DEFAULT_IMU_TOPIC = '/imu/data_raw'
+DEFAULT_MAG_TOPIC = '/imu/mag'
+
+
+def detect_topics(
+    reader: AnyReader, path: str | Path, imu_topic: str | None, mag_topic: str | None, no_mag: bool = False
+) -> tuple[str, str | None, bool]:
+    """The IMU and magnetometer topics to read, and whether the magnetometer topic is required (named by the user).
+
+    A topic not named (None) is the bag's one topic of its type; of several, the default name if it is one of them,
+    else a :class:`BagError` naming them. No magnetometer topic: :data:`DEFAULT_MAG_TOPIC`, which replay reads as
+    absent (6-D with a warning). ``no_mag``: None.
+    """
+
+    def topics_of(msgtype: str) -> list[str]:
+        return sorted({c.topic for c in reader.connections if c.msgtype == msgtype})
+
+    if imu_topic is None:
+        imus = topics_of(IMU_TYPE)
+        if len(imus) == 1:
+            imu_topic = imus[0]
+        elif not imus:
+            have = ', '.join(sorted({c.topic for c in reader.connections})) or 'none'
+            raise BagError(f'{path}: no sensor_msgs/Imu topic in bag (topics: {have})')
+        elif DEFAULT_IMU_TOPIC in imus:
+            imu_topic = DEFAULT_IMU_TOPIC
+        else:
+            raise BagError(f'{path}: several sensor_msgs/Imu topics ({", ".join(imus)}): choose one with --imu-topic')
+    if no_mag:
+        return imu_topic, None, False
+    if mag_topic is not None:
+        return imu_topic, mag_topic, True
+    mags = topics_of(MAG_TYPE)
+    if len(mags) == 1:
+        return imu_topic, mags[0], False
+    if len(mags) > 1 and DEFAULT_MAG_TOPIC not in mags:
+        raise BagError(f'{path}: several sensor_msgs/MagneticField topics ({", ".join(mags)}): choose one with '
+                       '--mag-topic or pass --no-mag')
+    return imu_topic, DEFAULT_MAG_TOPIC, False
 
 
 def message_counts(path: str | Path) -> dict[str, int]:

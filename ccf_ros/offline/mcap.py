@@ -21,6 +21,7 @@ import struct
 import zlib
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from itertools import pairwise
 from operator import itemgetter
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -179,7 +180,7 @@ class McapFile:
         chunks = [c for c in self._chunks if c.channels & wanted.keys() or not c.channels]
         chunks.sort(key=lambda c: c.offset)
         with self.path.open('rb') as f:
-            sequential = all(a.end_ns <= b.start_ns for a, b in zip(chunks, chunks[1:], strict=False))
+            sequential = all(a.end_ns <= b.start_ns for a, b in pairwise(chunks))
             if sequential:
                 for c in chunks:
                     for t, conn, data in self._records(f, c, wanted):
@@ -240,7 +241,7 @@ def fast_writer(writer: Writer) -> Callable[[Connection, int, Any], None]:
     from rosbags.rosbag2.enums import CompressionMode
     from rosbags.rosbag2.storage_mcap import McapWriter
 
-    storage: Any = writer.storage
+    storage: Any = getattr(writer, 'storage', None)
     if type(storage) is not McapWriter or writer.compression_mode != CompressionMode.NONE:
         return writer.write
     counts, stats = writer.counts, storage.channel_stats
