@@ -29,7 +29,7 @@ FLAGS = {
     'gyro_bias_unstable': 'gyro offset at rest changes within the bag',
     'acc_norm_off': 'accelerometer norm at rest differs from g (scale or offset error)',
     'vibration_high': 'high-frequency accelerometer vibration (above 5 Hz)',
-    'mag_disturbed': 'a large share of magnetometer samples rejected by the disturbance gate',
+    'mag_disturbed': "the field's norm varies (a magnet, steel, currents, or an uncalibrated hard iron)",
     'filter_nonfinite': 'the filter state became non-finite (NaN) and was re-initialised',
     'filter_restarts': 'the filter restarted after clock jumps',
     'gyro_only_high': 'a large share of samples propagated gyro-only (accelerometer unusable)',
@@ -47,7 +47,7 @@ class Thresholds:
     gyro_bias_change_rad_s: tuple[float, float] = (math.radians(1.0), math.radians(5.0))
     acc_norm_error_share: tuple[float, float] = (0.04, 0.10)
     vibration_m_s2: tuple[float, float] = (15.0, 30.0)
-    mag_rejected_share: tuple[float, float] = (0.25, 0.75)
+    mag_norm_cv: tuple[float, float] = (0.06, 0.15)
     gyro_only_share: tuple[float, float] = (0.10, 0.5)
     #: |gyro| (rad/s) and |acc| (m/s²) below which a flat top is not a range limit: below the smallest common full
     #: scale (±125 °/s = 2.18 rad/s; ±2 g = 19.6 m/s²), with margin for the sensor's own bias.
@@ -102,7 +102,6 @@ class HealthAccumulator:
         self.t_last = math.nan
         self._dt_nominal = math.nan
         self._n_not_increasing = 0
-        self._n_dropped = 0
         self._n_gaps = 0
         self._max_gap_s = 0.0
         self._jit = np.zeros(3)  # count, sum, sum of squares of regular dt, s
@@ -166,7 +165,6 @@ class HealthAccumulator:
         if math.isfinite(nom):
             gaps = dt[dt > 1.5 * nom]
             self._n_gaps += len(gaps)
-            self._n_dropped += int(np.sum(np.round(gaps / nom) - 1)) if len(gaps) else 0
             if len(gaps):
                 self._max_gap_s = max(self._max_gap_s, float(gaps.max()))
             regular = dt[(dt > 0.5 * nom) & (dt < 1.5 * nom)]
@@ -238,12 +236,15 @@ class HealthAccumulator:
         span = self.t_last - self.t_first if self.n > 1 else nan
         expected = span / nom + 1 if math.isfinite(nom) and nom > 0 else nan
         jn, js, jss = self._jit
+        # Missing samples: those the span holds at the nominal rate beyond the ones received (a swapped or repeated
+        # stamp leaves the span and the count as they are; a gap does not).
+        dropped = max(0, round(expected - self.n)) if math.isfinite(expected) else 0
         out |= {
             'start_time_s': self.t_first,
             'duration_s': span,
             'rate_hz': 1.0 / nom if math.isfinite(nom) and nom > 0 else nan,
-            'dropped_samples': float(self._n_dropped),
-            'dropped_share': self._n_dropped / expected if expected and math.isfinite(expected) else nan,
+            'dropped_samples': float(dropped),
+            'dropped_share': dropped / expected if expected and math.isfinite(expected) else nan,
             'gaps': float(self._n_gaps),
             'max_gap_s': self._max_gap_s,
             'not_increasing_stamps': float(self._n_not_increasing),
@@ -287,13 +288,14 @@ class HealthAccumulator:
 
     def _mag_result(self) -> dict[str, float]:
         nan = math.nan
-        out = dict.fromkeys(('mag_norm_mean', 'mag_norm_std', 'mag_dip_mean_rad', 'mag_dip_std_rad',
+        out = dict.fromkeys(('mag_norm_mean', 'mag_norm_std', 'mag_norm_cv', 'mag_dip_mean_rad', 'mag_dip_std_rad',
                              'mag_rejected_share', 'hard_iron_x', 'hard_iron_y', 'hard_iron_z', 'mag_coverage'), nan)
         n, s, ss = self._mag[:3]
         if not n:
             return out
         out['mag_norm_mean'] = s / n
         out['mag_norm_std'] = math.sqrt(max(ss / n - (s / n) ** 2, 0.0))
+        out['mag_norm_cv'] = out['mag_norm_std'] / out['mag_norm_mean'] if out['mag_norm_mean'] > 0 else nan
         out['mag_rejected_share'] = self._mag_rejected / self._mag_n
         dn, ds, dss = self._dip
         if dn:
@@ -326,7 +328,7 @@ _RULES = (
     ('gyro_bias_change_rad_s', 'gyro_bias_unstable', 'gyro_bias_change_rad_s'),
     ('acc_norm_error_share', 'acc_norm_off', 'acc_norm_error_share'),
     ('vibration_m_s2', 'vibration_high', 'vibration_m_s2'),
-    ('mag_rejected_share', 'mag_disturbed', 'mag_rejected_share'),
+    ('mag_norm_cv', 'mag_disturbed', 'mag_norm_cv'),
     ('filter_gyro_only_share', 'gyro_only_high', 'gyro_only_share'),
 )
 
