@@ -391,7 +391,8 @@ def cmd_fleet_run(args: argparse.Namespace) -> int:
     opts = FleetOptions(out=str(out), settings=merged, strict=strict, version=__version__, imu_topic=args.imu_topic,
                         mag_topic=args.mag_topic, no_mag=args.no_mag, write_bags=args.write_bags,
                         reference=args.reference, mask_topic=args.mask_topic, task_timeout_s=args.task_timeout,
-                        slow_block_s=float(os.environ.get('CCF_FLEET_SLOW_BLOCK_S', '0') or 0))
+                        # A test knob (not an option): every bag waits this long first, to kill a worker mid-bag.
+                        slow_bag_s=float(os.environ.get('CCF_FLEET_SLOW_BAG_S', '0') or 0))
     cfg = RunConfig(inputs=args.inputs, out=out, options=opts, jobs=args.jobs,
                     scheduler=args.scheduler or os.environ.get('DASK_SCHEDULER_ADDRESS') or None,
                     retry_failed=args.retry_failed, force=args.force, retries=args.retries,

@@ -44,8 +44,8 @@ class FleetOptions:
     reference: str = '/ground_truth/pose'
     mask_topic: str = '/ground_truth/moving'
     task_timeout_s: float = 0.0  # 0: none
-    #: seconds each block of samples is held back (tests: make a bag slow enough to kill its worker mid-run)
-    slow_block_s: float = 0.0
+    #: seconds each bag is held back before it starts (tests: a bag slow enough to kill its worker mid-run)
+    slow_bag_s: float = 0.0
 
 
 def result_path(out: str | Path, key: str) -> Path:
@@ -86,7 +86,7 @@ def filter_metrics(engine: Any) -> dict[str, float]:
     }
 
 
-def _observe(engine: Any, health: HealthAccumulator, deadline: float, slow_s: float) -> None:
+def _observe(engine: Any, health: HealthAccumulator, deadline: float) -> None:
     """Route every IMU sample the engine gets through ``health`` too (and check the deadline every block)."""
     on_imu = engine.on_imu
     add, buf, filt = health.add, health._buf, engine.filter
@@ -97,8 +97,6 @@ def _observe(engine: Any, health: HealthAccumulator, deadline: float, slow_s: fl
         add((t_s, gyr, acc, engine.paired_mag, gated and filt.mag_disturbed))
         if len(buf) >= BLOCK:
             health.flush()
-            if slow_s:
-                time.sleep(slow_s)
             if deadline and time.monotonic() > deadline:
                 raise BagTimeout(f'took longer than the task timeout ({deadline - _started[0]:g} s)')
         return out
@@ -174,7 +172,9 @@ def _run(bag: str, key: str, opts: FleetOptions) -> dict[str, Any]:
     health = HealthAccumulator()
     _started[0] = time.monotonic()
     deadline = _started[0] + opts.task_timeout_s if opts.task_timeout_s > 0 else 0.0
-    _observe(engine, health, deadline, opts.slow_block_s)
+    _observe(engine, health, deadline)
+    if opts.slow_bag_s:
+        time.sleep(opts.slow_bag_s)
     has_ref = bool(opts.reference) and _has_reference(bag, opts.reference)
     record: dict[str, Any] = {}
     if opts.write_bags or has_ref:
