@@ -17,11 +17,11 @@ import pytest
 
 pytest.importorskip('distributed')
 
-from ccf_ros import __version__  # noqa: E402
-from ccf_ros.cli import main  # noqa: E402
-from ccf_ros.errors import CcfError  # noqa: E402
-from ccf_ros.fleet.discover import discover  # noqa: E402
-from ccf_ros.offline.simulate import generate, write_bag  # noqa: E402
+from ccf_ros import __version__
+from ccf_ros.cli import main
+from ccf_ros.errors import CcfError
+from ccf_ros.fleet.discover import discover
+from ccf_ros.offline.simulate import generate, write_bag
 
 BIN = Path(sys.executable).parent
 N_BAGS = 6
