@@ -73,3 +73,31 @@ def test_fast_writer_writes_rosbags_bytes(sim_bag, tmp_path, storage):
     (tmp_path / 'x').mkdir()
     (tmp_path / 'y').mkdir()
     assert copy(tmp_path / 'x' / 'bag', True) == copy(tmp_path / 'y' / 'bag', False)
+
+
+def test_scan_without_message_index_gives_the_same_messages(sim_bag, monkeypatch):
+    """Chunks are read through their message index; without one, by scanning every record: same result."""
+    import dataclasses
+
+    import ccf_ros.offline.mcap as mcap
+
+    calls = {'indexed': 0}
+    real = mcap.McapFile._indexed
+
+    def counting(self, *a):
+        calls['indexed'] += 1
+        return real(self, *a)
+
+    monkeypatch.setattr(mcap.McapFile, '_indexed', counting)
+    indexed, _ = _both(sim_bag)
+    assert calls['indexed'] > 0
+    real_init = mcap.McapFile.__init__
+
+    def no_index(self, path):
+        real_init(self, path)
+        self._chunks = [dataclasses.replace(c, index={}) for c in self._chunks]
+
+    monkeypatch.setattr(mcap.McapFile, '__init__', no_index)
+    n = calls['indexed']
+    scanned, theirs = _both(sim_bag)
+    assert calls['indexed'] == n and scanned == indexed == theirs

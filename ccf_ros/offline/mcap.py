@@ -54,6 +54,7 @@ class _Chunk:
     end_ns: int
     offset: int  # of the chunk record in the file
     channels: frozenset[int]  # channel ids with messages in the chunk (from its message index offsets)
+    index: dict[int, int]  # channel id -> file offset of its message index record
     compression: str
     compressed_size: int
     uncompressed_size: int
@@ -124,17 +125,18 @@ class McapFile:
             elif op == 0x08:  # chunk index
                 start, stop, offset, _ = _CHUNK_INDEX.unpack_from(buf, rec)
                 (nmap,) = _U32.unpack_from(buf, rec + 32)
-                ids = frozenset(c for c, _ in struct.iter_unpack('<HQ', buf[rec + 36:rec + 36 + nmap]))
+                index = dict(struct.iter_unpack('<HQ', buf[rec + 36:rec + 36 + nmap]))
+                ids = frozenset(index)
                 p = rec + 36 + nmap + 8  # message index length
                 compression, p = _string(buf, p)
                 csize, usize = struct.unpack_from('<QQ', buf, p)
-                self._chunks.append(_Chunk(start, stop, offset, ids, compression, csize, usize))
+                self._chunks.append(_Chunk(start, stop, offset, ids, index, compression, csize, usize))
             elif op == 0x02:  # footer
                 break
             pos = rec + n
 
-    def _records(self, f: Any, chunk: _Chunk, wanted: dict[int, Any]) -> list[tuple[int, Any, memoryview]]:
-        """The wanted messages of one chunk as ``(log_time_ns, wanted[channel], data)``, sorted by time (stable)."""
+    def _chunk_data(self, f: Any, chunk: _Chunk) -> bytes:
+        """The decompressed records of ``chunk``, checked against its size and CRC."""
         f.seek(chunk.offset)
         head = f.read(9 + 28)  # opcode, length, start time, end time, uncompressed size, crc
         if len(head) < 37 or head[0] != 0x06:
@@ -149,6 +151,61 @@ class McapFile:
         buf = _decompress(data, compression, chunk.uncompressed_size)
         if crc and zlib.crc32(buf) != crc:
             raise McapError(f'{self.path}: chunk checksum mismatch at offset {chunk.offset}')
+        return buf
+
+    def _indexed(self, f: Any, chunk: _Chunk, wanted: dict[int, Any], buf: bytes) -> list[tuple[int, Any, memoryview]] | None:
+        """The wanted messages of a chunk located through its message index records (no scan of the other
+        records), sorted by (time, offset) as rosbags sorts them; None if the index is absent or does not match."""
+        import numpy as np
+
+        times, offsets, owners = [], [], []
+        for cid, conn in wanted.items():
+            pos = chunk.index.get(cid)
+            if pos is None:
+                continue
+            f.seek(pos)
+            head = f.read(15)
+            if len(head) < 15:
+                return None
+            op, _, ch, n = struct.unpack('<BQHI', head)
+            raw = f.read(n)
+            if op != 0x07 or ch != cid or len(raw) != n or n % 16:
+                return None
+            pairs = np.frombuffer(raw, dtype='<u8').reshape(-1, 2)
+            times.append(pairs[:, 0])
+            offsets.append(pairs[:, 1])
+            owners += [conn] * len(pairs)
+        if not times:
+            return []
+        t = np.concatenate(times)
+        off = np.concatenate(offsets)
+        if len(off) and int(off.max()) + 31 > len(buf):
+            return None
+        order = np.lexsort((off, t))
+        t, off = t[order], off[order].astype(np.int64)
+        u8 = np.frombuffer(buf, dtype=np.uint8)
+
+        def field(at: int, size: int, dtype: str) -> Any:
+            return u8[(off + at)[:, None] + np.arange(size)].copy().view(dtype).ravel()
+
+        lengths = field(1, 8, '<u8').astype(np.int64)
+        if (u8[off] != 0x05).any() or (field(15, 8, '<u8') != t).any() or (lengths < 22).any():
+            return None
+        ends = off + 9 + lengths
+        if len(ends) and int(ends.max()) > len(buf):
+            return None
+        mv = memoryview(buf)
+        conns = [owners[i] for i in order.tolist()]
+        return [(ti, c, mv[s:e]) for ti, c, s, e in zip(t.tolist(), conns, (off + 31).tolist(), ends.tolist(),
+                                                         strict=True)]
+
+    def _records(self, f: Any, chunk: _Chunk, wanted: dict[int, Any]) -> list[tuple[int, Any, memoryview]]:
+        """The wanted messages of one chunk as ``(log_time_ns, wanted[channel], data)``, sorted by time (stable)."""
+        buf = self._chunk_data(f, chunk)
+        if chunk.index:
+            found = self._indexed(f, chunk, wanted, buf)
+            if found is not None:
+                return found
         mv = memoryview(buf)
         out: list[tuple[int, Any, memoryview]] = []
         add = out.append
