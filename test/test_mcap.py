@@ -51,13 +51,12 @@ def test_overlapping_chunks_and_equal_stamps_merge_as_rosbags_does(tmp_path):
     assert len(mine) == 30_000 and mine == theirs
 
 
-def test_read_messages_fast_only_where_asked(sim_bag):
+def test_read_messages_fast_gives_rosbags_messages(sim_bag):
     with open_bag(sim_bag) as reader:
         conns = [c for c in reader.connections if c.topic == '/imu/data_raw']
         fast = list(read_messages(reader, sim_bag, conns, fast=True))
         slow = list(read_messages(reader, sim_bag, conns))
-    assert isinstance(fast[0][2], memoryview) and isinstance(slow[0][2], bytes)
-    assert [(c.id, t, bytes(r)) for c, t, r in fast] == [(c.id, t, r) for c, t, r in slow]
+    assert [(c.id, t, r) for c, t, r in fast] == [(c.id, t, r) for c, t, r in slow]
 
 
 @pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])

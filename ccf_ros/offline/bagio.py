@@ -78,7 +78,7 @@ def read_messages(
     """``(connection, t_rec_ns, raw)`` of ``reader.messages(connections)``; a read failure is a :class:`BagError`.
 
     ``fast``: read a single-file MCAP bag with :func:`~ccf_ros.offline.mcap.fast_messages` (same messages, same
-    order; ``raw`` is a memoryview into the chunk, valid as long as it is referenced), else through rosbags.
+    order, same bytes), else through rosbags.
     Only the reading is guarded: what the caller does with a message (between two ``next``) is not.
     """
     conns = list(connections) if connections is not None else list(reader.connections)

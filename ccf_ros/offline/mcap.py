@@ -153,7 +153,7 @@ class McapFile:
             raise McapError(f'{self.path}: chunk checksum mismatch at offset {chunk.offset}')
         return buf
 
-    def _indexed(self, f: Any, chunk: _Chunk, wanted: dict[int, Any], buf: bytes) -> list[tuple[int, Any, memoryview]] | None:
+    def _indexed(self, f: Any, chunk: _Chunk, wanted: dict[int, Any], buf: bytes) -> list[tuple[int, Any, bytes]] | None:
         """The wanted messages of a chunk located through its message index records (no scan of the other
         records), sorted by (time, offset) as rosbags sorts them; None if the index is absent or does not match."""
         import numpy as np
@@ -194,20 +194,18 @@ class McapFile:
         ends = off + 9 + lengths
         if len(ends) and int(ends.max()) > len(buf):
             return None
-        mv = memoryview(buf)
         conns = [owners[i] for i in order.tolist()]
-        return [(ti, c, mv[s:e]) for ti, c, s, e in zip(t.tolist(), conns, (off + 31).tolist(), ends.tolist(),
+        return [(ti, c, buf[s:e]) for ti, c, s, e in zip(t.tolist(), conns, (off + 31).tolist(), ends.tolist(),
                                                          strict=True)]
 
-    def _records(self, f: Any, chunk: _Chunk, wanted: dict[int, Any]) -> list[tuple[int, Any, memoryview]]:
+    def _records(self, f: Any, chunk: _Chunk, wanted: dict[int, Any]) -> list[tuple[int, Any, bytes]]:
         """The wanted messages of one chunk as ``(log_time_ns, wanted[channel], data)``, sorted by time (stable)."""
         buf = self._chunk_data(f, chunk)
         if chunk.index:
             found = self._indexed(f, chunk, wanted, buf)
             if found is not None:
                 return found
-        mv = memoryview(buf)
-        out: list[tuple[int, Any, memoryview]] = []
+        out: list[tuple[int, Any, bytes]] = []
         add = out.append
         unpack, u64 = _MESSAGE.unpack_from, _U64.unpack_from
         pos, end = 0, len(buf)
@@ -217,7 +215,7 @@ class McapFile:
                     _, n, cid, _, t, _ = unpack(buf, pos)
                     conn = wanted.get(cid)
                     if conn is not None:
-                        add((t, conn, mv[pos + 31:pos + 9 + n]))
+                        add((t, conn, buf[pos + 31:pos + 9 + n]))
                 else:
                     (n,) = u64(buf, pos + 1)
                 pos += 9 + n
@@ -228,7 +226,7 @@ class McapFile:
         out.sort(key=itemgetter(0))
         return out
 
-    def messages(self, wanted: dict[int, Any]) -> Iterator[tuple[Any, int, memoryview]]:
+    def messages(self, wanted: dict[int, Any]) -> Iterator[tuple[Any, int, bytes]]:
         """``(wanted[channel], log_time_ns, data)`` of the messages of the ``wanted`` channels, in rosbags' order.
 
         Chunks that follow each other in time (the usual case) are read one after the other; overlapping chunks are
@@ -269,7 +267,7 @@ def _mcap_path(reader: AnyReader) -> Path | None:
 
 def fast_messages(
     reader: AnyReader, connections: list[Connection]
-) -> Iterator[tuple[Connection, int, memoryview]] | None:
+) -> Iterator[tuple[Connection, int, bytes]] | None:
     """The messages of ``connections`` through :class:`McapFile` (same order and bytes as rosbags), or None where
     rosbags must read them (not a single uncompressed-message MCAP file, unindexed, or channels that do not map
     one-to-one to connections). Raises :class:`McapError` on a malformed file."""
