@@ -58,18 +58,25 @@ def fleet_vs_loop(bags: list[Path], work: Path) -> None:
 
     for b in bags:
         n += message_counts(b).get('/imu/data_raw', 0)
-    t0 = time.perf_counter()
+    import resource
+
+    def cpu() -> float:
+        r = resource.getrusage(resource.RUSAGE_CHILDREN)
+        return r.ru_utime + r.ru_stime
+
+    c0, t0 = cpu(), time.perf_counter()
     for b in bags:
         subprocess.run([str(BIN / 'ccf'), 'replay', str(b), '-o', str(work / 'loop' / b.name), '--overwrite'],
                        check=True, capture_output=True)
-    loop_s = time.perf_counter() - t0
-    t0 = time.perf_counter()
+    loop_s, loop_cpu = time.perf_counter() - t0, cpu() - c0
+    c0, t0 = cpu(), time.perf_counter()
     r = subprocess.run([str(BIN / 'ccf'), 'fleet', 'run', str(bags[0].parent), '-o', str(work / 'fleet'), '-j', '2',
                         '--write-bags', '--reference', '', '--quiet'], capture_output=True, text=True)
-    fleet_s = time.perf_counter() - t0
+    fleet_s, fleet_cpu = time.perf_counter() - t0, cpu() - c0
     assert r.returncode == 0, r.stdout + r.stderr
-    print(f'{len(bags)} bags, {n} IMU samples: sequential ccf replay loop {loop_s:.1f} s, ccf fleet run -j 2 '
-          f'--write-bags {fleet_s:.1f} s (cluster start included): {loop_s / fleet_s:.2f}x')
+    print(f'{len(bags)} bags, {n} IMU samples: sequential ccf replay loop {loop_s:.1f} s wall ({loop_cpu:.1f} CPU s), '
+          f'ccf fleet run -j 2 --write-bags {fleet_s:.1f} s wall ({fleet_cpu:.1f} CPU s; cluster start included): '
+          f'{loop_s / fleet_s:.2f}x faster; load average at the end {os.getloadavg()[0]:.1f}')
 
 
 def _bare_read(bag: Path) -> int:
@@ -116,18 +123,23 @@ def per_core(bag: Path, work: Path, repeats: int) -> None:
             'ccf fleet task, --write-bags': lambda: task(True),
             'replay() now': new_replay,
             'replay() on rosbags reader+writer (before)': old_replay}
+    # Per core: samples per CPU second of this process (the machine is shared: wall time measures the neighbours).
     rates: dict[str, list[float]] = {k: [] for k in runs}
+    walls: dict[str, list[float]] = {k: [] for k in runs}
     for _ in range(repeats):
         for name, fn in runs.items():  # interleaved
-            t0 = time.perf_counter()
+            c0, t0 = time.process_time(), time.perf_counter()
             n = fn()
-            rates[name].append(n / (time.perf_counter() - t0))
+            rates[name].append(n / (time.process_time() - c0))
+            walls[name].append(n / (time.perf_counter() - t0))
     bare = statistics.median(rates['bare rosbags read (IMU+mag records)'])
-    print(f'per core on {bag.name} (median of {repeats}, samples/s):')
+    print(f'per core on {bag.name} (median of {repeats}; samples per CPU second, and per wall second):')
     for name, r in rates.items():
         med = statistics.median(r)
-        print(f'  {name:45s} {med:10,.0f}   bare read / this = {bare / med:.2f}')
-    print(f'  replay now / before: {statistics.median(rates["replay() now"]) / statistics.median(rates["replay() on rosbags reader+writer (before)"]):.2f}x')
+        print(f'  {name:45s} {med:10,.0f} /CPU s {statistics.median(walls[name]):10,.0f} /wall s   '
+              f'bare read / this = {bare / med:.2f}')
+    now, before = (statistics.median(rates[k]) for k in ('replay() now', 'replay() on rosbags reader+writer (before)'))
+    print(f'  replay now / before: {now / before:.2f}x')
 
 
 def write_big_bag(path: Path, n: int, rate_hz: float = 200.0) -> None:

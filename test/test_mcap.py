@@ -100,3 +100,31 @@ def test_scan_without_message_index_gives_the_same_messages(sim_bag, monkeypatch
     n = calls['indexed']
     scanned, theirs = _both(sim_bag)
     assert calls['indexed'] == n and scanned == indexed == theirs
+
+
+def test_topics_are_detected_by_type(sim_bag, tmp_path):
+    """One Imu topic (whatever its name) is the IMU; of several, /imu/data_raw, else an error naming them."""
+    from conftest import copy_bag
+
+    from ccf_ros.errors import BagError
+    from ccf_ros.offline.bagio import detect_topics
+
+    with open_bag(sim_bag) as reader:
+        assert detect_topics(reader, sim_bag, None, None) == ('/imu/data_raw', '/imu/mag', False)
+        assert detect_topics(reader, sim_bag, None, None, no_mag=True) == ('/imu/data_raw', None, False)
+        assert detect_topics(reader, sim_bag, None, '/m') == ('/imu/data_raw', '/m', True)
+    two = copy_bag(sim_bag, tmp_path / 'two', stop_s=1.0)
+    from rosbags.rosbag2 import Writer
+
+    odd = tmp_path / 'odd'
+    with open_bag(two) as reader, Writer(odd, version=9) as w:
+        ts = typestore()
+        conns = {c.id: w.add_connection('/a/imu' if c.topic == '/imu/data_raw' else c.topic, c.msgtype, typestore=ts)
+                 for c in reader.connections}
+        extra = w.add_connection('/b/imu', 'sensor_msgs/msg/Imu', typestore=ts)
+        for c, t, raw in reader.messages():
+            w.write(conns[c.id], t, raw)
+            if c.topic == '/imu/data_raw':
+                w.write(extra, t, raw)
+    with open_bag(odd) as reader, pytest.raises(BagError, match=r'several sensor_msgs/Imu topics \(/a/imu, /b/imu\)'):
+        detect_topics(reader, odd, None, None)
