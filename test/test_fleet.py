@@ -114,8 +114,12 @@ def _run(args: list[str], env: dict[str, str] | None = None, timeout: float = 24
                           timeout=timeout, env={**os.environ, **(env or {})})
 
 
+def _strict(constant: str) -> None:
+    raise ValueError(f'results.jsonl must be strict JSON, found {constant}')
+
+
 def _records(out: Path) -> list[dict]:
-    return [json.loads(line) for line in (out / 'results.jsonl').read_text().splitlines()]
+    return [json.loads(line, parse_constant=_strict) for line in (out / 'results.jsonl').read_text().splitlines()]
 
 
 def _leftovers(out: Path) -> list[Path]:

@@ -55,6 +55,9 @@ def _plot(out: Path, device: str, recs: list[dict[str, Any]], index: int) -> str
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
+    for r in recs:  # results.jsonl writes NaN as null
+        if r.get('metrics'):
+            r['metrics'] = {k: (math.nan if v is None else v) for k, v in r['metrics'].items()}
     pts = [r for r in recs if r['status'] == 'ok' and math.isfinite(r['metrics'].get('start_time_s', math.nan))]
     if not pts:
         return None
@@ -112,7 +115,7 @@ def write_report(out: str | Path, device_regex: str | None = None) -> Path:
                      f'{sum(r.get("health") == "warn" for r in rs)} | {sum(r.get("health") == "fail" for r in rs)} | '
                      f'{sum(r["status"] != "ok" for r in rs)} | {", ".join(seen) or "–"} |')
     for i, d in enumerate(dev_rank):
-        rs = sorted(by_device[d], key=lambda r: (r.get('metrics') or {}).get('start_time_s', math.inf))
+        rs = sorted(by_device[d], key=lambda r: (r.get('metrics') or {}).get('start_time_s') or math.inf)
         lines += ['', f'## Device {d}', '',
                   '| bag | health | flags | samples | rate Hz | dropped | gyro bias °/s | acc norm err % | vibration m/s² '
                   '| mag rejected % |', '|---|---|---|---|---|---|---|---|---|---|']

@@ -162,9 +162,21 @@ def _flat(rec: dict[str, Any]) -> dict[str, Any]:
     return row
 
 
+def _no_nan(x: Any) -> Any:
+    """``x`` with NaN and infinities as None (null): strict JSON, which DuckDB, pandas and jq all read."""
+    if isinstance(x, float):
+        return x if math.isfinite(x) else None
+    if isinstance(x, dict):
+        return {k: _no_nan(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return [_no_nan(v) for v in x]
+    return x
+
+
 def write_tables(out: Path, records: list[dict[str, Any]]) -> None:
     """``results.jsonl`` (one object per bag) and ``results.csv`` (one row per bag), each written atomically."""
-    lines = ''.join(json.dumps({k: v for k, v in r.items() if k != 'key'}) + '\n' for r in records)
+    lines = ''.join(json.dumps(_no_nan({k: v for k, v in r.items() if k != 'key'}), allow_nan=False) + '\n'
+                    for r in records)
     rows = [_flat(r) for r in records]
     columns = list(CSV_COLUMNS) + sorted({k for r in rows for k in r} - set(CSV_COLUMNS))
     buf = io.StringIO()
