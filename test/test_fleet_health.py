@@ -152,3 +152,13 @@ def test_broad_trials_raise_no_fault_flag(tmp_path):
         assert r['status'] == 'ok', r
         allowed = {'mag_disturbed'} if trial.name in BROAD_MAGNET else set()
         assert set(r['flags']) <= allowed, (trial.name, r['flags'])
+
+
+def test_task_timeout_fails_a_slow_bag_with_one_line(fault_bags, tmp_path):
+    import dataclasses
+
+    opts = dataclasses.replace(_opts(tmp_path), task_timeout_s=0.2, slow_bag_s=0.5)
+    r = process_bag(str(fault_bags['clean']), 'slow', opts)
+    assert r['status'] == 'failed' and r['error'].startswith('BagTimeout: took longer than the task timeout (0.2 s)')
+    fast = process_bag(str(fault_bags['clean']), 'fast', dataclasses.replace(opts, task_timeout_s=600.0))
+    assert fast['status'] == 'ok'
