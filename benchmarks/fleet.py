@@ -102,7 +102,7 @@ def per_core(bag: Path, work: Path, repeats: int) -> None:
 
     def old_replay() -> int:
         mcap.fast_messages = lambda *a: None  # type: ignore[assignment]
-        mcap.fast_writer = lambda w: w.write  # type: ignore[assignment]
+        mcap.fast_writer = lambda w: (w.write, lambda: None)  # type: ignore[assignment]
         try:
             return replay(bag, work / 'old', make_engine(merged, strict), overwrite=True, progress=False).n_in
         finally:
@@ -167,7 +167,7 @@ def write_big_bag(path: Path, n: int, rate_hz: float = 200.0) -> None:
     with staged(path) as tmp, open_writer(tmp) as w:
         c_mag = w.add_connection('/imu/mag', 'sensor_msgs/msg/MagneticField', typestore=ts)
         c_imu = w.add_connection('/imu/data_raw', 'sensor_msgs/msg/Imu', typestore=ts)
-        write = fast_writer(w.writer)
+        write, flush = fast_writer(w.writer)
         block = 100_000
         for start in range(0, n, block):
             k = np.arange(start, min(start + block, n))
@@ -187,6 +187,7 @@ def write_big_bag(path: Path, n: int, rate_hz: float = 200.0) -> None:
                 f3.pack_into(imu, off + 200, *acc[i])
                 write(c_mag, tn, bytes(mag))
                 write(c_imu, tn, bytes(imu))
+            flush()
 
 
 RSS_SCRIPT = """

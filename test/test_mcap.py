@@ -64,9 +64,12 @@ def test_fast_writer_writes_rosbags_bytes(sim_bag, tmp_path, storage):
     def copy(dst: Path, fast: bool) -> bytes:
         with open_bag(sim_bag) as reader, open_writer(dst, storage) as w:
             conns = {c.id: w.add_connection(c.topic, c.msgtype, typestore=typestore()) for c in reader.connections}
-            write = fast_writer(w.writer) if fast else w.writer.write
-            for c, t, raw in reader.messages():
+            write, flush = fast_writer(w.writer) if fast else (w.writer.write, lambda: None)
+            for k, (c, t, raw) in enumerate(reader.messages()):
                 write(conns[c.id], t, raw)
+                if k % 5000 == 4999:  # flushed in blocks, as replay does
+                    flush()
+            flush()
         return b''.join(p.read_bytes() for p in sorted(dst.iterdir()))
 
     (tmp_path / 'x').mkdir()

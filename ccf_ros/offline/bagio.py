@@ -129,7 +129,7 @@ class BagWriter:
     def __init__(self, writer: Writer, path: Path) -> None:
         self.writer = writer
         self.path = path
-        self._write: Callable[[Connection, int, bytes | memoryview], None] | None = None
+        self._fast: tuple[Callable[[Connection, int, bytes | memoryview], None], Callable[[], None]] | None = None
 
     def add_connection(self, topic: str, msgtype: str, **kwargs: Any) -> Connection:
         try:
@@ -145,17 +145,20 @@ class BagWriter:
 
     @contextmanager
     def guarded(self) -> Iterator[Callable[[Connection, int, bytes | memoryview], None]]:
-        """rosbags' own ``write``, for a tight loop of writes under one guard instead of one per message: a
-        file-system failure in the ``with`` body is a :class:`BagError` (keep other I/O out of the body).
+        """A ``write`` for a tight loop of writes under one guard instead of one per message: a file-system failure
+        in the ``with`` body is a :class:`BagError` (keep other I/O out of the body).
 
-        For MCAP it is :func:`~ccf_ros.offline.mcap.fast_writer` (the same bytes, without rosbags' per-message
-        checks: write only to connections added with :meth:`add_connection`)."""
-        if self._write is None:
+        For MCAP it is :func:`~ccf_ros.offline.mcap.fast_writer`'s (the same bytes, without rosbags' per-message
+        checks: write only to connections added with :meth:`add_connection`); the messages are in the bag when the
+        ``with`` body ends."""
+        if self._fast is None:
             from .mcap import fast_writer
 
-            self._write = fast_writer(self.writer)
+            self._fast = fast_writer(self.writer)
+        write, flush = self._fast
         try:
-            yield self._write
+            yield write
+            flush()
         except _WRITE_ERRORS as err:
             raise self._error(err) from err
 

@@ -8,9 +8,9 @@ replay through this reader sees exactly what it sees through rosbags. Anything t
 (unindexed files, message-compressed bags, several storage files) is left to rosbags: :func:`fast_messages` says
 None.
 
-Writing: :func:`fast_writer` returns a ``write(connection, t_ns, data)`` that appends the same bytes to rosbags'
-pending MCAP chunk and updates the same counters as rosbags' ``Writer.write`` (the file is identical, bit for bit),
-without its per-message checks and ``BytesIO`` records. It relies on rosbags' ``McapWriter`` internals (rosbags is
+Writing: :func:`fast_writer` returns a ``write(connection, t_ns, data)`` that queues messages and a ``flush()`` that
+appends them to rosbags' pending MCAP chunk with the same bytes and counters as rosbags' ``Writer.write`` (the file
+is identical, bit for bit), without its per-message checks and ``BytesIO`` records. It relies on rosbags' ``McapWriter`` internals (rosbags is
 pinned to < 0.12 in setup.py); for any other writer it returns rosbags' own ``write``.
 """
 
@@ -290,42 +290,62 @@ def fast_messages(
     return mcap.messages(wanted)
 
 
-def fast_writer(writer: Writer) -> Callable[[Connection, int, Any], None]:
-    """A ``write(connection, t_ns, data)`` for rosbags' ``writer`` that writes the same bytes as ``writer.write``
-    (MCAP storage, no compression), faster; ``writer.write`` itself for any other storage or compression."""
+def fast_writer(writer: Writer) -> tuple[Callable[[Connection, int, Any], None], Callable[[], None]]:
+    """``(write, flush)`` for rosbags' ``writer``: ``write(connection, t_ns, data)`` queues a message, ``flush()``
+    appends the queued ones to rosbags' pending MCAP chunk with the same bytes and counters as ``writer.write``
+    (MCAP storage, no compression; the file is identical, bit for bit), in one tight loop. For any other storage or
+    compression: ``writer.write`` itself and a ``flush`` that does nothing. Flush before the writer is closed."""
     from rosbags.rosbag2.enums import CompressionMode
     from rosbags.rosbag2.storage_mcap import McapWriter
 
     storage: Any = getattr(writer, 'storage', None)
     if type(storage) is not McapWriter or writer.compression_mode != CompressionMode.NONE:
-        return writer.write
+        return writer.write, lambda: None
     counts, stats = writer.counts, storage.channel_stats
     header = struct.Struct('<BQHIQQ').pack
+    pending: list[tuple[int, int, Any]] = []
+    add = pending.append
 
     def write(connection: Connection, t_ns: int, data: Any) -> None:
-        # The steps of rosbags' Writer.write and McapWriter.write, in their order, on their state.
-        cid = connection.id
-        counts[cid] += 1
-        if t_ns < writer.min_timestamp:
-            writer.min_timestamp = t_ns
-        if t_ns > writer.max_timestamp:
-            writer.max_timestamp = t_ns
-        if t_ns < storage.message_start_time:
-            storage.message_start_time = t_ns
-        if t_ns > storage.message_end_time:
-            storage.message_end_time = t_ns
-        stats[cid] += 1
-        chunk = storage.chunk
-        if t_ns < chunk.message_start_time:
-            chunk.message_start_time = t_ns
-        if t_ns > chunk.message_end_time:
-            chunk.message_end_time = t_ns
-        bio = chunk.bio
-        pos = bio.tell()
-        chunk.msgs[cid].append((t_ns, pos))
-        bio.write(header(0x05, 22 + len(data), cid, 0, t_ns, t_ns))
-        bio.write(data)
-        if pos + 31 + len(data) > _CHUNK_BYTES:
-            storage.close_chunk()
+        add((connection.id, t_ns, data))
 
-    return write
+    def flush() -> None:
+        # The steps of rosbags' Writer.write and McapWriter.write, message by message, on their state.
+        if not pending:
+            return
+        times = [p[1] for p in pending]
+        t_lo, t_hi = min(times), max(times)
+        writer.min_timestamp = min(t_lo, writer.min_timestamp)
+        writer.max_timestamp = max(t_hi, writer.max_timestamp)
+        storage.message_start_time = min(t_lo, storage.message_start_time)
+        storage.message_end_time = max(t_hi, storage.message_end_time)
+        chunk = storage.chunk
+        bio, msgs, pos = chunk.bio, chunk.msgs, chunk.bio.tell()
+        lo, hi = chunk.message_start_time, chunk.message_end_time
+        parts: list[Any] = []
+        part = parts.append
+        for cid, t, data in pending:
+            counts[cid] += 1
+            stats[cid] += 1
+            if t < lo:
+                lo = t
+            if t > hi:
+                hi = t
+            msgs[cid].append((t, pos))
+            n = len(data)
+            part(header(0x05, 22 + n, cid, 0, t, t))
+            part(data)
+            pos += 31 + n
+            if pos > _CHUNK_BYTES:  # rosbags closes the chunk after the message that passes 1 MiB
+                bio.write(b''.join(parts))
+                parts.clear()
+                chunk.message_start_time, chunk.message_end_time = lo, hi
+                storage.close_chunk()
+                chunk = storage.chunk
+                bio, msgs, pos = chunk.bio, chunk.msgs, 0
+                lo, hi = chunk.message_start_time, chunk.message_end_time
+        bio.write(b''.join(parts))
+        chunk.message_start_time, chunk.message_end_time = lo, hi
+        pending.clear()
+
+    return write, flush
