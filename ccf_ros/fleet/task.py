@@ -86,8 +86,10 @@ def filter_metrics(engine: Any) -> dict[str, float]:
     }
 
 
-def _observe(engine: Any, health: HealthAccumulator, deadline: float) -> None:
-    """Route every IMU sample the engine gets through ``health`` too (and check the deadline every block)."""
+def _observe(engine: Any, health: HealthAccumulator, timeout_s: float) -> None:
+    """Route every IMU sample the engine gets through ``health`` too, and end the bag (:class:`BagTimeout`) once it
+    has run ``timeout_s`` (0: never), checked every block."""
+    deadline = time.monotonic() + timeout_s if timeout_s > 0 else 0.0
     on_imu = engine.on_imu
     add, buf, filt = health.add, health._buf, engine.filter
     gated = hasattr(filt, 'mag_disturbed')
@@ -98,13 +100,11 @@ def _observe(engine: Any, health: HealthAccumulator, deadline: float) -> None:
         if len(buf) >= BLOCK:
             health.flush()
             if deadline and time.monotonic() > deadline:
-                raise BagTimeout(f'took longer than the task timeout ({deadline - _started[0]:g} s)')
+                raise BagTimeout(f'took longer than the task timeout ({timeout_s:g} s)')
         return out
 
     setattr(engine, 'on_imu', observed)  # noqa: B010 - an instance attribute over the method, for this engine only
 
-
-_started = [0.0]
 
 
 def _health_only(bag: str, engine: Any, opts: FleetOptions) -> list[str]:
@@ -170,9 +170,7 @@ def _run(bag: str, key: str, opts: FleetOptions) -> dict[str, Any]:
 
     engine = make_engine(opts.settings, opts.strict)
     health = HealthAccumulator()
-    _started[0] = time.monotonic()
-    deadline = _started[0] + opts.task_timeout_s if opts.task_timeout_s > 0 else 0.0
-    _observe(engine, health, deadline)
+    _observe(engine, health, opts.task_timeout_s)
     if opts.slow_bag_s:
         time.sleep(opts.slow_bag_s)
     has_ref = bool(opts.reference) and _has_reference(bag, opts.reference)
