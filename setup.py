@@ -36,7 +36,9 @@ setup(
     extras_require={
         # `ccf study`'s least-squares gain fit (LSCF); everything else needs only numpy.
         'study': ['scipy>=1.10'],
-        'test': ['pytest>=7', 'ruff>=0.5', 'mypy>=1.8', 'colcon-core', 'colcon-ros', 'colcon-python-setup-py', 'scipy>=1.10'],
+        # `ccf fleet`: many bags on a local or an existing Dask cluster (tqdm and matplotlib are required anyway).
+        'fleet': ['dask[distributed]>=2024.1'],
+        'test': ['dask[distributed]>=2024.1', 'pytest>=7', 'ruff>=0.5', 'mypy>=1.8', 'colcon-core', 'colcon-ros', 'colcon-python-setup-py', 'scipy>=1.10'],
     },
     python_requires='>=3.11',
     zip_safe=True,

@@ -1,6 +1,6 @@
 """``ccf``: offline tools on recorded bags, no ROS install needed.
 
-Subcommands: replay, eval, simulate, play, demo, study, calibrate-mag, params.
+Subcommands: replay, eval, simulate, play, demo, study, calibrate-mag, params, fleet.
 
 A problem with the input (a bag, a parameter, an option, an output that exists) is one line on stderr and exit
 code 2; Ctrl-C exits 130. Anything else is a bug in ccf_ros: it shows its traceback (exit code 1). ``--debug``
@@ -25,8 +25,10 @@ from .errors import BagError, CcfError, ParameterError
 
 #: The magnetometer topic read when ``--mag-topic`` is not given (a bag without it runs 6-D, with a warning).
 DEFAULT_MAG_TOPIC = '/imu/mag'
-MAG_TOPIC_HELP = (f'sensor_msgs/MagneticField input topic (if not given: {DEFAULT_MAG_TOPIC}, 6-D with a warning if '
-                  'the bag has none; a topic given here must be in the bag)')
+MAG_TOPIC_HELP = ('sensor_msgs/MagneticField input topic (if not given: the bag\'s one MagneticField topic, of '
+                  f'several {DEFAULT_MAG_TOPIC}; 6-D with a warning if the bag has none; a topic given here must be in '
+                  'the bag)')
+IMU_TOPIC_HELP = ("sensor_msgs/Imu input topic (if not given: the bag's one Imu topic, of several /imu/data_raw)")
 
 
 class HelpFormatter(argparse.RawDescriptionHelpFormatter):
@@ -60,10 +62,11 @@ def _settings(args: argparse.Namespace) -> tuple[dict[str, Any], dict[str, Any]]
     return from_files, given
 
 
-def _engine(args: argparse.Namespace) -> Any:
+def engine_settings(args: argparse.Namespace) -> tuple[dict[str, Any], bool]:
+    """The merged settings the engine is built from (profile defaults, then files, then ``--param``) and whether
+    they are checked strictly; checked here, so a bad value is one error before any bag is read."""
     from .compat import PROFILES, apply_do_bias_estimation
     from .core.registry import SELECTORS
-    from .engine import ImuEngine
     from .settings import build
 
     from_files, given = _settings(args)
@@ -77,8 +80,21 @@ def _engine(args: argparse.Namespace) -> Any:
         # apply to the selected one.
         selected = {name: merged[name] for name in SELECTORS if name in merged}
         build({**selected, **given}, strict=True)
-    filt, adapter = build(merged, strict=not from_files)
+    build(merged, strict=not from_files)
+    return merged, not from_files
+
+
+def make_engine(merged: dict[str, Any], strict: bool) -> Any:
+    """A fresh :class:`~ccf_ros.engine.ImuEngine` from :func:`engine_settings`' result (in any process)."""
+    from .engine import ImuEngine
+    from .settings import build
+
+    filt, adapter = build(merged, strict=strict)
     return ImuEngine(filt, adapter)
+
+
+def _engine(args: argparse.Namespace) -> Any:
+    return make_engine(*engine_settings(args))
 
 
 def _writable(path: str | Path, what: str, overwrite: bool) -> Path:
@@ -109,8 +125,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
         args.output,
         engine,
         imu_topic=args.imu_topic,
-        mag_topic=None if args.no_mag else (args.mag_topic or DEFAULT_MAG_TOPIC),
-        mag_required=args.mag_topic is not None,
+        mag_topic=args.mag_topic,
+        detect=True,
+        no_mag=args.no_mag,
         storage=args.storage,
         copy_input=args.copy_input,
         overwrite=args.overwrite,
@@ -367,6 +384,61 @@ def cmd_params(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_fleet_run(args: argparse.Namespace) -> int:
+    import os
+
+    from . import __version__
+    from .fleet.report import write_report
+    from .fleet.run import RunConfig, run_fleet
+    from .fleet.task import FleetOptions
+
+    if args.jobs < 0:
+        raise ParameterError(f'-j/--jobs must be >= 0, got {args.jobs}')
+    if not args.task_timeout >= 0:
+        raise ParameterError(f'--task-timeout must be >= 0 s, got {args.task_timeout!r}')
+    merged, strict = engine_settings(args)
+    out = Path(args.output).absolute()
+    opts = FleetOptions(out=str(out), settings=merged, strict=strict, version=__version__, imu_topic=args.imu_topic,
+                        mag_topic=args.mag_topic, no_mag=args.no_mag, write_bags=args.write_bags,
+                        reference=args.reference, mask_topic=args.mask_topic, task_timeout_s=args.task_timeout,
+                        # A test knob (not an option): every bag waits this long first, to kill a worker mid-bag.
+                        slow_bag_s=float(os.environ.get('CCF_FLEET_SLOW_BAG_S', '0') or 0))
+    cfg = RunConfig(inputs=args.inputs, out=out, options=opts, jobs=args.jobs,
+                    scheduler=args.scheduler or os.environ.get('DASK_SCHEDULER_ADDRESS') or None,
+                    retry_failed=args.retry_failed, force=args.force, retries=args.retries,
+                    progress=False if args.quiet else None, device_regex=args.device)
+    s = run_fleet(cfg)
+    report = write_report(out, args.device)
+    if not s.n_submitted:
+        print(f'nothing to do: all {s.n_bags} bags are done ({s.n_failed} failed; --retry-failed or --force to redo)')
+    for r in s.records:
+        if r['status'] != 'ok':
+            print(f'failed: {r["bag"]}: {r.get("error", "")}', file=sys.stderr)
+    rate = s.samples / s.wall_s if s.wall_s > 0 else 0.0
+    print(f'{s.n_bags} bags: {s.n_ok} ok, {s.n_failed} failed; {s.n_submitted} processed now, {s.n_done_before} '
+          f'done before; {s.wall_s:.1f} s. Results: {out / "results.jsonl"}, report: {report}'
+          + (f' ({rate:,.0f} samples/s over all bags)' if s.n_submitted else ''))
+    return 1 if s.n_failed else 0
+
+
+def cmd_fleet_report(args: argparse.Namespace) -> int:
+    from .fleet.report import write_report
+
+    print(f'report: {write_report(args.output, args.device)}')
+    return 0
+
+
+def _add_filter_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument('--params-file', action='append', metavar='FILE',
+                   help='ROS 2 parameters YAML, as for the node (config/ccf.yaml, a ccf calibrate-mag result); '
+                   'repeatable, a later file overrides an earlier one')
+    p.add_argument('--param', action='append', metavar='NAME=VALUE',
+                   help='set one parameter, over the parameters files (repeatable; list: ccf params)')
+    p.add_argument('--profile', choices=('ccf_node', 'imu_filter_madgwick_node', 'complementary_filter_node'),
+                   default='ccf_node', help="start from this executable's defaults (replay an imu_tools YAML as the "
+                   'drop-in node of that name would run it)')
+
+
 def build_parser() -> argparse.ArgumentParser:
     from . import __version__
     from .core.registry import FILTERS
@@ -384,7 +456,7 @@ def build_parser() -> argparse.ArgumentParser:
     r = add('replay', 'run the filter over a bag, write /imu/data and /imu/gyro_bias to a new bag')
     r.add_argument('bag', help='input: rosbag2 directory (mcap or sqlite3) or ROS 1 .bag')
     r.add_argument('-o', '--output', required=True, help='output rosbag2 directory')
-    r.add_argument('--imu-topic', default='/imu/data_raw', help='sensor_msgs/Imu input topic')
+    r.add_argument('--imu-topic', help=IMU_TOPIC_HELP)
     r.add_argument('--mag-topic', help=MAG_TOPIC_HELP)
     r.add_argument('--no-mag', action='store_true', help='ignore the magnetometer (6-D filter)')
     r.add_argument('--params-file', action='append', metavar='FILE',
@@ -463,6 +535,41 @@ def build_parser() -> argparse.ArgumentParser:
 
     magcal.add_parser(sub).formatter_class = HelpFormatter
 
+    fl = add('fleet', 'filter, score and health-check many bags on Dask (local cores or an existing cluster)')
+    fsub = fl.add_subparsers(dest='fleet_command', required=True, metavar='ACTION')
+    fr = fsub.add_parser('run', help='process bags: results.jsonl, results.csv, report.md', formatter_class=HelpFormatter,
+                         description='process bags: results.jsonl, results.csv, report.md (exit 0: all ok, 1: some '
+                         'failed, 2: usage error or unreachable scheduler)')
+    fr.add_argument('inputs', nargs='+', metavar='INPUT',
+                    help='a bag (rosbag2 folder, .mcap, .db3, ROS 1 .bag), a folder searched recursively, or @LIST.txt '
+                    '(one path per line)')
+    fr.add_argument('-o', '--output', required=True, help='output folder (results, per-bag files, report)')
+    fr.add_argument('-j', '--jobs', type=int, default=0, help='local worker processes (0: one per core)')
+    fr.add_argument('--scheduler', metavar='tcp://HOST:PORT',
+                    help='run on this Dask scheduler (if not given: DASK_SCHEDULER_ADDRESS, else a local cluster)')
+    fr.add_argument('--imu-topic', help=IMU_TOPIC_HELP)
+    fr.add_argument('--mag-topic', help=MAG_TOPIC_HELP)
+    fr.add_argument('--no-mag', action='store_true', help='ignore the magnetometer (6-D filter)')
+    _add_filter_options(fr)
+    fr.add_argument('--write-bags', action='store_true', help="also write each bag's ccf replay output (OUT/bags/)")
+    fr.add_argument('--reference', default='/ground_truth/pose',
+                    help="reference orientation topic: bags that have it get ccf eval's accuracy ('' = none)")
+    fr.add_argument('--mask-topic', default='/ground_truth/moving', help='Bool topic: score only where true, when present')
+    fr.add_argument('--retry-failed', action='store_true', help='process the bags that failed before again')
+    fr.add_argument('--force', action='store_true', help='process every bag again')
+    fr.add_argument('--retries', type=int, default=2, help='retries of a bag whose task errs on a worker')
+    fr.add_argument('--task-timeout', type=float, default=0.0, metavar='S',
+                    help='a bag still running after S s fails (0: no limit; checked between blocks of samples)')
+    fr.add_argument('--device', metavar='REGEX', help="report: group bags by REGEX's first group on the path (if not "
+                    "given: the bag's parent folder)")
+    fr.add_argument('--quiet', action='store_true', help='no progress bar')
+    fr.set_defaults(func=cmd_fleet_run)
+    fp = fsub.add_parser('report', help='write OUT/report.md (+ PNG) from OUT/results.jsonl', formatter_class=HelpFormatter)
+    fp.add_argument('output', help='output folder of ccf fleet run')
+    fp.add_argument('--device', metavar='REGEX', help="group bags by REGEX's first group on the path (if not given: "
+                    "the bag's parent folder)")
+    fp.set_defaults(func=cmd_fleet_report)
+
     pa = add('params', 'list every parameter with its default, unit and description')
     what = pa.add_mutually_exclusive_group()
     what.add_argument('--yaml', action='store_true', help='print config/ccf.yaml instead: every parameter as a '
@@ -473,7 +580,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help='with --filter ccf: quaternion or euler (if not given: the filter\'s default)')
     pa.set_defaults(func=cmd_params)
 
-    for sp in sub.choices.values():
+    for sp in [*sub.choices.values(), *fsub.choices.values()]:
         # Also after the subcommand (`ccf replay ... --debug`); SUPPRESS keeps `ccf --debug replay` working.
         sp.add_argument('--debug', action='store_true', default=argparse.SUPPRESS,
                         help='show the traceback of input errors too')

@@ -358,7 +358,9 @@ def subcommands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentP
 
 def test_every_subcommand_help_shows_every_default():
     subs = subcommands(build_parser())
-    assert set(subs) == {'replay', 'eval', 'simulate', 'play', 'demo', 'study', 'calibrate-mag', 'params'}
+    assert set(subs) == {'replay', 'eval', 'simulate', 'play', 'demo', 'study', 'calibrate-mag', 'params', 'fleet'}
+    subs |= {f'fleet {k}': v for k, v in subcommands(subs['fleet']).items()}  # fleet run, fleet report
+    assert {'fleet run', 'fleet report'} <= set(subs)
     n_checked = 0
     for name, sub in subs.items():
         text = ' '.join(sub.format_help().split())

@@ -30,7 +30,7 @@ if TYPE_CHECKING:  # rosbags is imported when a bag is opened, not with this mod
     from rosbags.typesys.store import Typestore
 
 __all__ = [
-    'BagError', 'BagWriter', 'ImuArrays', 'connections_for', 'deserialize', 'in_bag_order', 'open_bag', 'open_writer',
+    'BagError', 'BagWriter', 'ImuArrays', 'connections_for', 'deserialize', 'detect_topics', 'in_bag_order', 'open_bag', 'open_writer',
     'read_bools', 'read_imu_arrays', 'read_messages', 'read_orientations', 'read_topic', 'refuse_existing', 'ros1_to_cdr',
     'staged', 'stamp_s', 'typestore', 'unreadable',
 ]
@@ -73,14 +73,23 @@ def open_bag(path: str | Path) -> Iterator[AnyReader]:
 
 
 def read_messages(
-    reader: AnyReader, path: str | Path, connections: Iterable[Connection] | None = None
+    reader: AnyReader, path: str | Path, connections: Iterable[Connection] | None = None, *, fast: bool = False
 ) -> Iterator[tuple[Connection, int, bytes]]:
     """``(connection, t_rec_ns, raw)`` of ``reader.messages(connections)``; a read failure is a :class:`BagError`.
 
+    ``fast``: read a single-file MCAP bag with :func:`~ccf_ros.offline.mcap.fast_messages` (same messages, same
+    order, same bytes), else through rosbags.
     Only the reading is guarded: what the caller does with a message (between two ``next``) is not.
     """
+    conns = list(connections) if connections is not None else list(reader.connections)
     try:
-        it = reader.messages(connections=list(connections) if connections is not None else ())
+        it: Iterator[Any] | None = None
+        if fast:
+            from .mcap import fast_messages
+
+            it = fast_messages(reader, conns)
+        if it is None:
+            it = reader.messages(connections=conns)
     except Exception as err:
         raise unreadable(path, err) from err
     while True:
@@ -120,6 +129,7 @@ class BagWriter:
     def __init__(self, writer: Writer, path: Path) -> None:
         self.writer = writer
         self.path = path
+        self._fast: tuple[Callable[[Connection, int, bytes | memoryview], None], Callable[[], None]] | None = None
 
     def add_connection(self, topic: str, msgtype: str, **kwargs: Any) -> Connection:
         try:
@@ -135,10 +145,20 @@ class BagWriter:
 
     @contextmanager
     def guarded(self) -> Iterator[Callable[[Connection, int, bytes | memoryview], None]]:
-        """rosbags' own ``write``, for a tight loop of writes under one guard instead of one per message: a
-        file-system failure in the ``with`` body is a :class:`BagError` (keep other I/O out of the body)."""
+        """A ``write`` for a tight loop of writes under one guard instead of one per message: a file-system failure
+        in the ``with`` body is a :class:`BagError` (keep other I/O out of the body).
+
+        For MCAP it is :func:`~ccf_ros.offline.mcap.fast_writer`'s (the same bytes, without rosbags' per-message
+        checks: write only to connections added with :meth:`add_connection`); the messages are in the bag when the
+        ``with`` body ends."""
+        if self._fast is None:
+            from .mcap import fast_writer
+
+            self._fast = fast_writer(self.writer)
+        write, flush = self._fast
         try:
-            yield self.writer.write
+            yield write
+            flush()
         except _WRITE_ERRORS as err:
             raise self._error(err) from err
 
@@ -251,6 +271,50 @@ def connections_for(
         if msgtype is not None and c.msgtype != msgtype:
             raise BagError(f'topic {topic} is {c.msgtype}, expected {msgtype}')
     return conns
+
+
+IMU_TYPE = 'sensor_msgs/msg/Imu'
+MAG_TYPE = 'sensor_msgs/msg/MagneticField'
+#: The topics read when a bag has several of a type and none is named (imu_tools' names).
+DEFAULT_IMU_TOPIC = '/imu/data_raw'
+DEFAULT_MAG_TOPIC = '/imu/mag'
+
+
+def detect_topics(
+    reader: AnyReader, path: str | Path, imu_topic: str | None, mag_topic: str | None, no_mag: bool = False
+) -> tuple[str, str | None, bool]:
+    """The IMU and magnetometer topics to read, and whether the magnetometer topic is required (named by the user).
+
+    A topic not named (None) is the bag's one topic of its type; of several, the default name if it is one of them,
+    else a :class:`BagError` naming them. No magnetometer topic: :data:`DEFAULT_MAG_TOPIC`, which replay reads as
+    absent (6-D with a warning). ``no_mag``: None.
+    """
+
+    def topics_of(msgtype: str) -> list[str]:
+        return sorted({c.topic for c in reader.connections if c.msgtype == msgtype})
+
+    if imu_topic is None:
+        imus = topics_of(IMU_TYPE)
+        if len(imus) == 1:
+            imu_topic = imus[0]
+        elif not imus:
+            have = ', '.join(sorted({c.topic for c in reader.connections})) or 'none'
+            raise BagError(f'{path}: no sensor_msgs/Imu topic in bag (topics: {have})')
+        elif DEFAULT_IMU_TOPIC in imus:
+            imu_topic = DEFAULT_IMU_TOPIC
+        else:
+            raise BagError(f'{path}: several sensor_msgs/Imu topics ({", ".join(imus)}): choose one with --imu-topic')
+    if no_mag:
+        return imu_topic, None, False
+    if mag_topic is not None:
+        return imu_topic, mag_topic, True
+    mags = topics_of(MAG_TYPE)
+    if len(mags) == 1:
+        return imu_topic, mags[0], False
+    if len(mags) > 1 and DEFAULT_MAG_TOPIC not in mags:
+        raise BagError(f'{path}: several sensor_msgs/MagneticField topics ({", ".join(mags)}): choose one with '
+                       '--mag-topic or pass --no-mag')
+    return imu_topic, DEFAULT_MAG_TOPIC, False
 
 
 def message_counts(path: str | Path) -> dict[str, int]:

@@ -29,6 +29,7 @@ from .bagio import (
     BagWriter,
     connections_for,
     deserialize,
+    detect_topics,
     in_bag_order,
     open_bag,
     open_writer,
@@ -112,9 +113,11 @@ def replay(
     bag_out: str | Path,
     engine: ImuEngine,
     *,
-    imu_topic: str = '/imu/data_raw',
+    imu_topic: str | None = '/imu/data_raw',
     mag_topic: str | None = '/imu/mag',
     mag_required: bool = False,
+    detect: bool = False,
+    no_mag: bool = False,
     out_imu_topic: str = '/imu/data',
     out_bias_topic: str = '/imu/gyro_bias',
     storage: str = 'mcap',
@@ -126,6 +129,8 @@ def replay(
 
     Written to a temporary sibling and renamed at the end: an error or Ctrl-C leaves no half bag behind.
 
+    ``detect``: ``imu_topic`` None is the bag's one Imu topic, ``mag_topic`` None its one MagneticField topic
+    (:func:`~ccf_ros.offline.bagio.detect_topics`; a named ``mag_topic`` is then required; ``no_mag``: none).
     A bag without ``mag_topic`` replays 6-D (heading relative to the start) with a warning in the summary, unless
     ``mag_required``, which makes it an error (the user named a topic, and a typo must not pass silently).
 
@@ -138,9 +143,13 @@ def replay(
     if bag_out.resolve() == Path(bag_in).resolve() or bag_out.resolve() in Path(bag_in).resolve().parents:
         raise BagError(f'output {bag_out} must neither be the input bag nor a folder that holds it')
     refuse_existing(bag_out, overwrite)
-    topics = Topics(imu_topic, mag_topic, out_imu_topic, out_bias_topic, mag_required)
     t0 = time.perf_counter()
-    with staged(bag_out) as tmp, open_bag(bag_in) as reader, open_writer(tmp, storage) as writer:
+    with open_bag(bag_in) as reader, staged(bag_out) as tmp, open_writer(tmp, storage) as writer:
+        if detect:
+            imu_topic, mag_topic, mag_required = detect_topics(reader, bag_in, imu_topic, mag_topic, no_mag)
+        if imu_topic is None:
+            raise BagError('replay: no IMU topic (pass imu_topic or detect=True)')
+        topics = Topics(imu_topic, mag_topic, out_imu_topic, out_bias_topic, mag_required)
         replayer = _Replayer(reader, writer, engine, bag_in, topics, copy_input)
         n_out = replayer.run(progress)
     warnings = engine.warnings + replayer.warnings
@@ -385,7 +394,7 @@ class _Replayer:
         ros1 = not self._reader.is2
         block: list[_Entry] = []
         add = block.append
-        for conn, t_rec, raw in read_messages(self._reader, self._bag, self._inputs):
+        for conn, t_rec, raw in read_messages(self._reader, self._bag, self._inputs, fast=True):
             cid = conn.id
             if cid in copies:
                 cdr = ros1_to_cdr(self._store, raw, conn.msgtype, self._bag) if ros1 else raw

@@ -1,0 +1,221 @@
+"""One bag of a fleet run, in a worker: engine + health (+ the output bag, + accuracy), a small result dict, and
+the bag's result file written atomically. The only code that runs on Dask workers."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from .health import BLOCK, HealthAccumulator, judge
+
+__all__ = ['BagTimeout', 'FleetOptions', 'VersionMismatch', 'filter_metrics', 'process_bag', 'result_path']
+
+#: Where a bag's result and output bag go, under the run's output folder.
+BAGS_DIR = 'bags'
+REFERENCE_TYPES = ('geometry_msgs/msg/PoseStamped', 'sensor_msgs/msg/Imu', 'geometry_msgs/msg/QuaternionStamped',
+                   'nav_msgs/msg/Odometry')
+
+
+class VersionMismatch(RuntimeError):
+    """The worker runs another ccf_ros version than the driver (its results would not be the driver's)."""
+
+
+class BagTimeout(RuntimeError):
+    """The bag took longer than ``--task-timeout``."""
+
+
+@dataclass(frozen=True)
+class FleetOptions:
+    """What every task needs (picklable: sent to the workers)."""
+
+    out: str  # the run's output folder (absolute)
+    settings: dict[str, Any]  # the engine's merged settings (ccf_ros.cli.engine_settings)
+    strict: bool
+    version: str
+    imu_topic: str | None = None
+    mag_topic: str | None = None
+    no_mag: bool = False
+    write_bags: bool = False
+    reference: str = '/ground_truth/pose'
+    mask_topic: str = '/ground_truth/moving'
+    task_timeout_s: float = 0.0  # 0: none
+    #: seconds each bag is held back before it starts (tests: a bag slow enough to kill its worker mid-run)
+    slow_bag_s: float = 0.0
+
+
+def result_path(out: str | Path, key: str) -> Path:
+    return Path(out) / BAGS_DIR / f'{key}.json'
+
+
+def output_bag_path(out: str | Path, bag: str, key: str) -> Path:
+    name = Path(bag).name.removesuffix('.mcap').removesuffix('.db3').removesuffix('.bag')
+    return Path(out) / BAGS_DIR / f'{name}-{key[:10]}'
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    """Write beside ``path`` under a name of this process, then rename: readers see the whole file or none."""
+    tmp = path.with_name(f'.{path.name}.{os.getpid()}.tmp')
+    try:
+        tmp.write_text(text)
+        tmp.replace(path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def filter_metrics(engine: Any) -> dict[str, float]:
+    """The filter's figures at the end of a bag: NaN resets, restarts, gyro-only share, final bias and its σ."""
+    f = engine.filter
+    n = max(engine.n_in, 1)
+    bias = f.gyro_bias
+    sigma = getattr(f, 'gyro_bias_sigma_rad_s', math.nan)
+    return {
+        'filter_nonfinite_resets': float(engine.n_nonfinite_resets),
+        'filter_restarts': float(engine.n_resets_jump),
+        'filter_gyro_only_share': engine.n_no_acc / n,
+        'filter_no_heading_share': engine.n_no_mag / n,
+        'filter_skipped_share': sum(engine.skipped_by_reason().values()) / n,
+        'filter_bias_x_rad_s': float(bias[0]), 'filter_bias_y_rad_s': float(bias[1]),
+        'filter_bias_z_rad_s': float(bias[2]),
+        'filter_bias_sigma_rad_s': float(sigma() if callable(sigma) else sigma),
+    }
+
+
+def _observe(engine: Any, health: HealthAccumulator, timeout_s: float) -> None:
+    """Route every IMU sample the engine gets through ``health`` too, and end the bag (:class:`BagTimeout`) once it
+    has run ``timeout_s`` (0: never), checked every block."""
+    deadline = time.monotonic() + timeout_s if timeout_s > 0 else 0.0
+    on_imu = engine.on_imu
+    add, buf, filt = health.add, health._buf, engine.filter
+    gated = hasattr(filt, 'mag_disturbed')
+
+    def observed(t_s: float, gyr: Any, acc: Any) -> Any:
+        out = on_imu(t_s, gyr, acc)
+        add((t_s, gyr, acc, engine.paired_mag, gated and filt.mag_disturbed))
+        if len(buf) >= BLOCK:
+            health.flush()
+            if deadline and time.monotonic() > deadline:
+                raise BagTimeout(f'took longer than the task timeout ({timeout_s:g} s)')
+        return out
+
+    setattr(engine, 'on_imu', observed)  # noqa: B010 - an instance attribute over the method, for this engine only
+
+
+
+def _health_only(bag: str, engine: Any, opts: FleetOptions) -> list[str]:
+    """The engine over the bag without an output bag; returns warnings."""
+    from ..errors import BagError
+    from ..offline.bagio import connections_for, deserialize, detect_topics, in_bag_order, open_bag, read_messages
+    from ..offline.fastcdr import LITTLE_ENDIAN_CDR, read_imu, read_mag
+    from ..offline.messages import stamp_s
+    from ..offline.replay import IMU, MAGNETIC_FIELD
+
+    warnings: list[str] = []
+    with open_bag(bag) as reader:
+        imu_t, mag_t, required = detect_topics(reader, bag, opts.imu_topic, opts.mag_topic, opts.no_mag)
+        imu_conns = connections_for(reader, imu_t, msgtype=IMU)
+        mag_conns = connections_for(reader, mag_t, required=required, msgtype=MAGNETIC_FIELD) if mag_t else []
+        if not sum(c.msgcount for c in imu_conns):
+            raise BagError(f'{bag}: no messages on {imu_t}')
+        if mag_t and not sum(c.msgcount for c in mag_conns) and getattr(engine.filter.params, 'use_mag', True):
+            warnings.append(f'no {mag_t} in the bag: 6-D')
+        imu_ids = {c.id for c in imu_conns}
+        on_imu, on_mag = engine.on_imu, engine.on_mag
+        ros2 = reader.is2
+        for conn, _, raw in read_messages(reader, bag, in_bag_order(reader, imu_conns + mag_conns), fast=True):
+            if ros2 and raw[:2] == LITTLE_ENDIAN_CDR:
+                if conn.id in imu_ids:
+                    t, _, g, a = read_imu(raw)
+                    on_imu(t, g, a)
+                else:
+                    t, f = read_mag(raw)
+                    on_mag(t, f)
+            else:
+                msg = deserialize(reader, raw, conn.msgtype, bag)
+                if conn.id in imu_ids:
+                    gv, av = msg.angular_velocity, msg.linear_acceleration
+                    on_imu(stamp_s(msg.header), (gv.x, gv.y, gv.z), (av.x, av.y, av.z))
+                else:
+                    fv = msg.magnetic_field
+                    on_mag(stamp_s(msg.header), (fv.x, fv.y, fv.z))
+    return warnings
+
+
+def _has_reference(bag: str, topic: str) -> bool:
+    """The bag has ``topic``, of a reference type, with messages."""
+    from ..offline.bagio import open_bag
+
+    with open_bag(bag) as reader:
+        return any(c.topic == topic and c.msgtype in REFERENCE_TYPES and c.msgcount for c in reader.connections)
+
+
+def _accuracy(out_bag: Path, bag: str, opts: FleetOptions) -> dict[str, Any]:
+    """``ccf eval OUT --reference R --reference-bag BAG [--mask-topic M]``'s figures."""
+    from ..offline.bagio import message_counts
+    from ..offline.evaluate import evaluate, load_aligned
+
+    mask = opts.mask_topic if opts.mask_topic and message_counts(bag).get(opts.mask_topic) else None
+    s = evaluate(load_aligned(out_bag, opts.reference, reference_bag=bag, mask_topic=mask))
+    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in s.as_dict().items()}
+
+
+def _run(bag: str, key: str, opts: FleetOptions) -> dict[str, Any]:
+    from ..cli import make_engine
+    from ..offline.replay import replay
+
+    engine = make_engine(opts.settings, opts.strict)
+    health = HealthAccumulator()
+    _observe(engine, health, opts.task_timeout_s)
+    if opts.slow_bag_s:
+        time.sleep(opts.slow_bag_s)
+    has_ref = bool(opts.reference) and _has_reference(bag, opts.reference)
+    record: dict[str, Any] = {}
+    if opts.write_bags or has_ref:
+        out_bag = output_bag_path(opts.out, bag, key)
+        summary = replay(bag, out_bag, engine, imu_topic=opts.imu_topic, mag_topic=opts.mag_topic, detect=True,
+                         no_mag=opts.no_mag, overwrite=True, progress=False)
+        warnings = summary.warnings
+        if has_ref:
+            record['accuracy'] = _accuracy(out_bag, bag, opts)
+        if opts.write_bags:
+            record['output'] = str(out_bag)
+        else:
+            import shutil
+
+            shutil.rmtree(out_bag, ignore_errors=True)
+    else:
+        warnings = _health_only(bag, engine, opts)
+    metrics = health.result(filter_metrics(engine))
+    health_level, flags = judge(metrics)
+    return {'samples': int(metrics['samples']), 'health': health_level, 'flags': flags, 'metrics': metrics,
+            'warnings': warnings, **record}
+
+
+def process_bag(bag: str, key: str, opts: FleetOptions) -> dict[str, Any]:
+    """Process one bag and write its result file (atomically); returns the result (small: no arrays).
+
+    A bag that cannot be read, has no IMU topic or makes the filter raise gives ``status: failed`` with a one-line
+    ``error``. Raises :class:`VersionMismatch` if this worker's ccf_ros is not the driver's.
+    """
+    from .. import __version__
+
+    if __version__ != opts.version:
+        raise VersionMismatch(f'worker has ccf_ros {__version__}, the driver {opts.version}: install the same version '
+                              'on every worker')
+    t0 = time.perf_counter()
+    try:
+        body = _run(bag, key, opts)
+        result = {'bag': bag, 'key': key, 'status': 'ok', **body}
+    except Exception as err:  # a bad bag, or the filter raising: this bag fails, the others go on
+        msg = ' '.join(str(err).split()) or type(err).__name__
+        result = {'bag': bag, 'key': key, 'status': 'failed', 'error': f'{type(err).__name__}: {msg}'}
+    result['wall_s'] = time.perf_counter() - t0
+    path = result_path(opts.out, key)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    _write_atomic(path, json.dumps(result, allow_nan=True))
+    return result

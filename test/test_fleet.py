@@ -1,0 +1,300 @@
+"""``ccf fleet`` on a real Dask cluster: a ``dask scheduler`` and two ``dask worker`` processes on 127.0.0.1 started
+here, one of them SIGKILLed mid-run; resume, failures, exit codes, outputs equal to ``ccf replay``/``ccf eval``."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip('distributed')
+
+from ccf_ros import __version__
+from ccf_ros.cli import main
+from ccf_ros.errors import CcfError
+from ccf_ros.fleet.discover import discover
+from ccf_ros.offline.simulate import generate, write_bag
+
+BIN = Path(sys.executable).parent
+N_BAGS = 6
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(('127.0.0.1', 0))
+        return int(s.getsockname()[1])
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(10)
+
+
+class Cluster:
+    """A scheduler and worker processes on 127.0.0.1 (no nanny: a killed worker stays dead)."""
+
+    def __init__(self, log_dir: Path) -> None:
+        self.port = _free_port()
+        self.address = f'tcp://127.0.0.1:{self.port}'
+        self.log_dir = log_dir
+        self.scheduler = self._spawn('scheduler', [str(BIN / 'dask'), 'scheduler', '--host', '127.0.0.1', '--port',
+                                                   str(self.port), '--no-dashboard'])
+        self.workers: list[subprocess.Popen] = []
+
+    def _spawn(self, name: str, cmd: list[str]) -> subprocess.Popen:
+        log = (self.log_dir / f'{name}.log').open('w')
+        return subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+
+    def add_worker(self) -> subprocess.Popen:
+        w = self._spawn(f'worker{len(self.workers)}', [
+            str(BIN / 'dask'), 'worker', self.address, '--nthreads', '1', '--no-dashboard', '--host', '127.0.0.1',
+            '--no-nanny', '--name', f'w{len(self.workers)}'])
+        self.workers.append(w)
+        return w
+
+    def wait_workers(self, n: int, timeout_s: float = 90.0) -> None:
+        from distributed import Client
+
+        with Client(self.address, timeout='30s', set_as_default=False) as c:
+            c.wait_for_workers(n, timeout=timeout_s)
+
+    def close(self) -> None:
+        for p in [*self.workers, self.scheduler]:
+            _stop(p)
+
+
+@pytest.fixture(scope='module')
+def cluster(tmp_path_factory):
+    c = Cluster(tmp_path_factory.mktemp('dask'))
+    try:
+        c.add_worker()
+        c.add_worker()
+        c.wait_workers(2)
+        yield c
+    finally:
+        c.close()
+
+
+@pytest.fixture(scope='module')
+def fleet_bags(tmp_path_factory) -> Path:
+    """N_BAGS simulated bags (20 s at 100 Hz) in two 'device' folders, and one corrupt bag in a third."""
+    root = tmp_path_factory.mktemp('fleet')
+    first = root / 'robot_a' / 'day0'
+    write_bag(generate(20.0, 100.0, 5, rest_s=6.0), first)
+    for i in range(1, N_BAGS):
+        dst = root / ('robot_a' if i < 3 else 'robot_b') / f'day{i}'
+        dst.parent.mkdir(exist_ok=True)
+        write_bag(generate(20.0, 100.0, 5 + i, rest_s=6.0), dst)
+    return root
+
+
+def _corrupt_copy(bag: Path, dst: Path) -> Path:
+    shutil.copytree(bag, dst)
+    mcap = next(dst.glob('*.mcap'))
+    data = mcap.read_bytes()
+    mcap.write_bytes(data[:len(data) // 3])  # truncated mid-chunk, as an interrupted copy leaves it
+    return dst
+
+
+def _run(args: list[str], env: dict[str, str] | None = None, timeout: float = 240) -> subprocess.CompletedProcess:
+    return subprocess.run([str(BIN / 'ccf'), 'fleet', 'run', *args, '--quiet'], capture_output=True, text=True,
+                          timeout=timeout, env={**os.environ, **(env or {})})
+
+
+def _strict(constant: str) -> None:
+    raise ValueError(f'results.jsonl must be strict JSON, found {constant}')
+
+
+def _records(out: Path) -> list[dict]:
+    return [json.loads(line, parse_constant=_strict) for line in (out / 'results.jsonl').read_text().splitlines()]
+
+
+def _leftovers(out: Path) -> list[Path]:
+    return [p for p in out.rglob('*') if p.name.startswith('.') or p.name.endswith(('.tmp', '.partial'))]
+
+
+def test_worker_killed_mid_run_every_bag_ok_exactly_once_then_resume(cluster, fleet_bags, tmp_path):
+    out = tmp_path / 'out'
+    cmd = [str(BIN / 'ccf'), 'fleet', 'run', str(fleet_bags), '-o', str(out), '--scheduler', cluster.address,
+           '--quiet', '--reference', '']
+    # Every bag waits 2 s first: when the first result appears, both workers are inside their next bag.
+    driver = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                              env={**os.environ, 'CCF_FLEET_SLOW_BAG_S': '2'})
+    try:
+        deadline = time.monotonic() + 120
+        while not list((out / 'bags').glob('*.json')):
+            assert driver.poll() is None, driver.communicate()
+            assert time.monotonic() < deadline, 'no result appeared'
+            time.sleep(0.05)
+        n_before = len(list((out / 'bags').glob('*.json')))
+        victim = cluster.workers[0]
+        os.kill(victim.pid, signal.SIGKILL)
+        stdout, stderr = driver.communicate(timeout=180)
+    finally:
+        if driver.poll() is None:
+            driver.kill()
+    assert victim.wait(10) == -signal.SIGKILL
+    assert n_before < N_BAGS  # killed mid-run
+    assert driver.returncode == 0, stdout + stderr
+    recs = _records(out)
+    assert len(recs) == N_BAGS and {r['status'] for r in recs} == {'ok'}
+    assert sorted(r['bag'] for r in recs) == sorted(discover([str(fleet_bags)]))
+    assert len(list((out / 'bags').glob('*.json'))) == N_BAGS  # one result file per bag
+    assert _leftovers(out) == []
+    # The csv has one row per bag too.
+    assert len((out / 'results.csv').read_text().splitlines()) == N_BAGS + 1
+    assert (out / 'report.md').exists() and list(out.glob('report_device*.png'))
+
+    # A rerun submits nothing (it does not even need the cluster).
+    again = _run([str(fleet_bags), '-o', str(out), '--scheduler', 'tcp://127.0.0.1:9', '--reference', ''])
+    assert again.returncode == 0, again.stderr
+    assert 'nothing to do' in again.stdout and '0 processed now' in again.stdout
+    assert _records(out) == recs
+
+    # Deleting one bag's result reprocesses that bag only.
+    gone = next((out / 'bags').glob('*.json'))
+    key = gone.stem
+    gone.unlink()
+    cluster.add_worker()  # the killed one's replacement
+    one = _run([str(fleet_bags), '-o', str(out), '--scheduler', cluster.address, '--reference', ''])
+    assert one.returncode == 0, one.stderr
+    assert '1 processed now, 5 done before' in one.stdout
+    assert (out / 'bags' / f'{key}.json').exists()
+    assert [r['bag'] for r in _records(out)] == [r['bag'] for r in recs]
+
+
+def test_corrupt_bag_fails_alone_exit_1_and_retry_failed(cluster, fleet_bags, tmp_path):
+    bags = tmp_path / 'in'
+    shutil.copytree(fleet_bags / 'robot_b', bags / 'robot_b')
+    bad = _corrupt_copy(fleet_bags / 'robot_a' / 'day0', bags / 'robot_c' / 'broken')
+    out = tmp_path / 'out'
+    r = _run([str(bags), '-o', str(out), '--scheduler', cluster.address, '--reference', ''])
+    assert r.returncode == 1, r.stdout + r.stderr
+    recs = {Path(x['bag']).name: x for x in _records(out)}
+    assert recs['broken']['status'] == 'failed'
+    assert 'cannot open bag' in recs['broken']['error'] and '\n' not in recs['broken']['error']
+    assert all(x['status'] == 'ok' for k, x in recs.items() if k != 'broken')
+    assert f'failed: {bad}' in r.stderr
+    assert 'failed' in (out / 'report.md').read_text()
+    # A rerun leaves the failed bag failed; --retry-failed tries it (and only it) again.
+    again = _run([str(bags), '-o', str(out), '--scheduler', cluster.address, '--reference', ''])
+    assert again.returncode == 1 and '0 processed now' in again.stdout
+    retry = _run([str(bags), '-o', str(out), '--scheduler', cluster.address, '--reference', '', '--retry-failed'])
+    assert retry.returncode == 1 and '1 processed now' in retry.stdout
+
+
+def test_unreachable_scheduler_exits_2_within_10_s(fleet_bags, tmp_path):
+    port = _free_port()  # nothing listens there
+    t0 = time.monotonic()
+    r = _run([str(fleet_bags / 'robot_b'), '-o', str(tmp_path / 'out'), '--scheduler', f'tcp://127.0.0.1:{port}'],
+             timeout=60)
+    wall = time.monotonic() - t0
+    assert r.returncode == 2, r.stdout + r.stderr
+    assert wall < 10.0, wall
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and 'cannot reach the Dask scheduler' in lines[0]
+    # DASK_SCHEDULER_ADDRESS names it as well.
+    r = _run([str(fleet_bags / 'robot_b'), '-o', str(tmp_path / 'out2')],
+             env={'DASK_SCHEDULER_ADDRESS': f'tcp://127.0.0.1:{port}'}, timeout=60)
+    assert r.returncode == 2 and 'cannot reach the Dask scheduler' in r.stderr
+
+
+def test_write_bags_equal_ccf_replay_and_accuracy_equals_ccf_eval(cluster, fleet_bags, tmp_path):
+    from ccf_ros.offline.bagio import open_bag
+
+    bag = fleet_bags / 'robot_b' / 'day3'
+    out = tmp_path / 'out'
+    r = _run([str(bag), '-o', str(out), '--scheduler', cluster.address, '--write-bags'])
+    assert r.returncode == 0, r.stdout + r.stderr
+    (rec,) = _records(out)
+    assert main(['replay', str(bag), '-o', str(tmp_path / 'replayed')]) == 0
+
+    def messages(p: Path) -> list[tuple[str, int, bytes]]:
+        with open_bag(p) as reader:
+            return [(c.topic, t, bytes(raw)) for c, t, raw in reader.messages()]
+
+    assert messages(Path(rec['output'])) == messages(tmp_path / 'replayed')
+    assert main(['eval', str(tmp_path / 'replayed'), '--reference', '/ground_truth/pose', '--reference-bag', str(bag),
+                 '--mask-topic', '/ground_truth/moving', '--json', str(tmp_path / 'eval.json')]) == 0
+    want = json.loads((tmp_path / 'eval.json').read_text())
+    assert rec['accuracy'] == want
+    assert 0 < rec['accuracy']['total_rmse_deg'] < 20
+
+
+def test_workers_of_another_version_are_one_clear_error(cluster, fleet_bags, tmp_path):
+    from ccf_ros.cli import build_parser, engine_settings
+    from ccf_ros.fleet.run import RunConfig, run_fleet
+    from ccf_ros.fleet.task import FleetOptions, VersionMismatch, process_bag
+
+    merged, strict = engine_settings(build_parser().parse_args(['fleet', 'run', 'x', '-o', 'y']))
+    opts = FleetOptions(out=str(tmp_path / 'o'), settings=merged, strict=strict, version='0.0.0-driver')
+    with pytest.raises(CcfError, match=r'workers run another ccf_ros than this driver \(0\.0\.0-driver\).*'
+                       + __version__.replace('.', r'\.')):
+        run_fleet(RunConfig([str(fleet_bags / 'robot_b')], tmp_path / 'o', opts, scheduler=cluster.address))
+    with pytest.raises(VersionMismatch, match='install the same version'):
+        process_bag(str(fleet_bags / 'robot_b' / 'day3'), 'k', opts)
+
+
+def test_local_cluster_by_default_and_topics_detected(fleet_bags, tmp_path):
+    """No --scheduler: a local cluster of -j single-threaded processes; bags with other topic names need no
+    option when they hold one Imu and one MagneticField topic (and ccf replay detects them too)."""
+    from rosbags.rosbag2 import Writer
+
+    from ccf_ros.offline.bagio import open_bag, typestore
+
+    renamed = tmp_path / 'in' / 'renamed'
+    renamed.parent.mkdir()
+    names = {'/imu/data_raw': '/sensors/imu', '/imu/mag': '/sensors/mag'}
+    ts = typestore()
+    with open_bag(fleet_bags / 'robot_b' / 'day4') as reader, Writer(renamed, version=9) as w:
+        conns = {c.id: w.add_connection(names.get(c.topic, c.topic), c.msgtype, typestore=ts)
+                 for c in reader.connections}
+        for c, t, raw in reader.messages():
+            w.write(conns[c.id], t, raw)
+    out = tmp_path / 'out'
+    r = _run([str(tmp_path / 'in'), '-o', str(out), '-j', '1', '--reference', ''], timeout=180)
+    assert r.returncode == 0, r.stdout + r.stderr
+    (rec,) = _records(out)
+    assert rec['status'] == 'ok' and rec['samples'] == 2000 and rec['warnings'] == []
+    assert main(['replay', str(renamed), '-o', str(tmp_path / 'rep')]) == 0
+
+
+def test_discovery_of_folders_lists_and_bare_files(fleet_bags, tmp_path):
+    mcap = next((fleet_bags / 'robot_a' / 'day0').glob('*.mcap'))
+    bare = tmp_path / 'loose' / 'x.mcap'
+    bare.parent.mkdir()
+    shutil.copy(mcap, bare)
+    listing = tmp_path / 'list.txt'
+    listing.write_text(f'# two bags\n{fleet_bags / "robot_b" / "day3"}\n\nloose/x.mcap\n')
+    found = discover([f'@{listing}', str(fleet_bags / 'robot_b'), str(tmp_path / 'loose')])
+    assert found == [str(fleet_bags / 'robot_b' / 'day3'), str(bare), str(fleet_bags / 'robot_b' / 'day4'),
+                     str(fleet_bags / 'robot_b' / 'day5')]
+    assert len(discover([str(fleet_bags)])) == N_BAGS
+    assert discover([str(fleet_bags)], exclude=fleet_bags / 'robot_b') == discover([str(fleet_bags / 'robot_a')])
+    with pytest.raises(CcfError, match='no such bag or folder'):
+        discover([str(tmp_path / 'nope')])
+    with pytest.raises(CcfError, match='no bags found'):
+        discover([str(tmp_path / 'loose' / '..' / 'empty')] if (tmp_path / 'empty').mkdir() is None else [])
+
+
+def test_without_dask_one_line_says_what_to_install(monkeypatch, tmp_path, capsys, fleet_bags):
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, 'find_spec', lambda name, *a: None if name == 'distributed' else real(name, *a))
+    assert main(['fleet', 'run', str(fleet_bags / 'robot_b'), '-o', str(tmp_path / 'o')]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "pip install 'ccf_ros[fleet]'" in err

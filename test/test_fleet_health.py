@@ -1,0 +1,164 @@
+"""IMU health per bag: one injected fault per simulated bag raises exactly its flag; clean bags and BROAD none."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ccf_ros import __version__
+from ccf_ros.fleet.health import FLAGS, HealthAccumulator, judge
+from ccf_ros.fleet.task import FleetOptions, process_bag
+from ccf_ros.offline.simulate import SimData, generate, write_bag
+
+RATE_HZ = 200.0
+FAULT_FLAGS = {'samples_dropped', 'stamps_not_increasing', 'gyro_clipping', 'acc_clipping', 'gyro_bias_high',
+               'acc_norm_off', 'vibration_high'}
+
+
+def _pulses(n: int, starts: list[int], width: int, amplitude: float) -> np.ndarray:
+    """Half-sine pulses of ``amplitude`` and ``width`` samples at ``starts``: brisk flicks or taps."""
+    x = np.zeros(n)
+    for s in starts:
+        x[s:s + width] += amplitude * np.sin(np.pi * (np.arange(width) + 0.5) / width)
+    return x
+
+
+def _subset(d: SimData, keep: np.ndarray) -> SimData:
+    return SimData(t_s=d.t_s[keep], q_true=d.q_true[keep], gyr=d.gyr[keep], acc=d.acc[keep], mag=d.mag[keep],
+                   bias=d.bias[keep], moving=d.moving[keep])
+
+
+def _faulty(kind: str, seed: int) -> SimData:
+    """30 s of simulated hand-held motion at 200 Hz (8 s rest first) with one fault of ``kind`` (or none)."""
+    d = generate(30.0, RATE_HZ, seed, rest_s=8.0)
+    n = len(d.t_s)
+    starts = [int(s * RATE_HZ) for s in (12.0, 16.0, 20.0, 24.0)]
+    if kind == 'samples_dropped':  # three blocks of 0.25 s lost
+        keep = np.ones(n, bool)
+        for s in starts[:3]:
+            keep[s:s + 50] = False
+        d = _subset(d, keep)
+    elif kind == 'stamps_not_increasing':
+        pass  # header stamps are changed in the written bag (see fault_bags): the receive times stay in order
+    elif kind == 'gyro_clipping':  # flicks about z to 6 rad/s on a ±250 °/s gyro
+        d.gyr[:, 2] = np.clip(d.gyr[:, 2] + _pulses(n, starts, 30, 6.0), -4.363, 4.363)
+    elif kind == 'acc_clipping':  # taps to 40 m/s² on a ±2 g accelerometer
+        d.acc[:, 0] = np.clip(d.acc[:, 0] + _pulses(n, starts, 10, 40.0), -19.61, 19.61)
+    elif kind == 'gyro_bias_high':  # 5 °/s offset on x
+        d.gyr[:, 0] += math.radians(5.0)
+    elif kind == 'acc_norm_off':  # 8 % scale error
+        d.acc *= 1.08
+    elif kind == 'vibration_high':  # a motor's 45 Hz shake of 25 m/s² amplitude on x and y
+        shake = 25.0 * np.sin(2 * np.pi * 45.0 * d.t_s)
+        d.acc[:, 0] += shake
+        d.acc[:, 1] += 25.0 * np.cos(2 * np.pi * 45.0 * d.t_s)
+    else:
+        assert kind == 'clean'
+    return d
+
+
+def _opts(out: Path) -> FleetOptions:
+    from ccf_ros.cli import build_parser, engine_settings
+
+    merged, strict = engine_settings(build_parser().parse_args(['fleet', 'run', 'x', '-o', str(out)]))
+    return FleetOptions(out=str(out), settings=merged, strict=strict, version=__version__, reference='')
+
+
+@pytest.fixture(scope='module')
+def fault_bags(tmp_path_factory) -> dict[str, Path]:
+    root = tmp_path_factory.mktemp('faults')
+    bags = {}
+    for i, kind in enumerate(['clean', 'clean2', *sorted(FAULT_FLAGS)]):
+        bags[kind] = root / kind
+        write_bag(_faulty('clean' if kind == 'clean2' else kind, 20 + i), bags[kind])
+    # Five IMU header stamps 1.5 periods behind their predecessor (a driver stamping late), received in order.
+    from conftest import _stamp, copy_bag
+
+    src, count = bags['stamps_not_increasing'], [0]
+    back = {int(s * RATE_HZ) for s in (12.0, 16.0, 20.0, 24.0, 27.0)}
+
+    def edit(topic, msg, t):
+        if topic == '/imu/data_raw':
+            if count[0] in back:
+                st = msg.header.stamp
+                _stamp(msg, st.sec + st.nanosec * 1e-9 - 1.5 / RATE_HZ)
+            count[0] += 1
+        return [(msg, t)]
+
+    bags['stamps_not_increasing'] = copy_bag(src, root / 'stamps_edited', edit=edit)
+    return bags
+
+
+@pytest.mark.parametrize('kind', ['clean', 'clean2', *sorted(FAULT_FLAGS)])
+def test_each_injected_fault_raises_exactly_its_flag(fault_bags, kind, tmp_path):
+    r = process_bag(str(fault_bags[kind]), f'k{kind}', _opts(tmp_path))
+    assert r['status'] == 'ok', r
+    want = [] if kind.startswith('clean') else [kind]
+    assert r['flags'] == want, (r['flags'], {k: v for k, v in r['metrics'].items() if not k.startswith('filter')})
+    assert r['health'] == ('ok' if not want else r['health'])
+    assert r['health'] in (('ok',) if not want else ('warn', 'fail'))
+    # The result file is the returned record, written whole.
+    assert json.loads((tmp_path / 'bags' / f'k{kind}.json').read_text())['flags'] == want
+    m = r['metrics']
+    if kind == 'gyro_bias_high':
+        # 5 °/s on top of the simulated gyro's own offset (N(0, 0.5 °/s) per axis)
+        assert m['gyro_bias_x_rad_s'] == pytest.approx(math.radians(5.0), abs=math.radians(1.5))
+    if kind == 'acc_norm_off':
+        assert m['acc_norm_error_share'] == pytest.approx(0.08, abs=0.01)
+    if kind == 'samples_dropped':
+        assert m['dropped_samples'] == pytest.approx(150, abs=2)
+    if kind == 'stamps_not_increasing':
+        assert m['not_increasing_stamps'] == 5 and m['dropped_samples'] == 0
+    if kind.startswith('clean'):
+        assert m['rate_hz'] == pytest.approx(RATE_HZ, rel=1e-3)
+        assert m['rest_s'] >= 6.0
+
+
+def test_health_memory_is_running_sums_not_arrays():
+    """Blocks are reduced as they come: after a flush nothing of the samples is kept but sums."""
+    h = HealthAccumulator()
+    rng = np.random.default_rng(0)
+    for k in range(20_000):
+        h.add((k / 200.0, tuple(rng.normal(0, 0.01, 3)), (0.0, 0.0, 9.81), (2e-5, 0.0, -4e-5), False))
+        if len(h._buf) >= 4096:
+            h.flush()
+    assert len(h._buf) < 4096
+    m = h.result()
+    assert m['samples'] == 20_000 and m['dropped_samples'] == 0
+    assert m['gyro_noise_rad_s'] == pytest.approx(0.01, rel=0.05)
+    assert judge(m) == ('ok', [])
+
+
+def test_flag_vocabulary_is_documented():
+    doc = (Path(__file__).resolve().parents[1] / 'doc' / 'fleet.md').read_text()
+    for flag in FLAGS:
+        assert f'`{flag}`' in doc, flag
+
+
+BROAD_MAGNET = ('30_disturbed_stationary_magnet_C', '33_disturbed_attached_magnet_2cm')
+
+
+def test_broad_trials_raise_no_fault_flag(tmp_path):
+    from conftest import SHARED, need_shared
+
+    need_shared(SHARED)
+    opts = _opts(tmp_path)
+    for trial in sorted(p for p in SHARED.iterdir() if (p / 'metadata.yaml').exists()):
+        r = process_bag(str(trial), trial.name, opts)
+        assert r['status'] == 'ok', r
+        allowed = {'mag_disturbed'} if trial.name in BROAD_MAGNET else set()
+        assert set(r['flags']) <= allowed, (trial.name, r['flags'])
+
+
+def test_task_timeout_fails_a_slow_bag_with_one_line(fault_bags, tmp_path):
+    import dataclasses
+
+    opts = dataclasses.replace(_opts(tmp_path), task_timeout_s=0.2, slow_bag_s=0.5)
+    r = process_bag(str(fault_bags['clean']), 'slow', opts)
+    assert r['status'] == 'failed' and r['error'].startswith('BagTimeout: took longer than the task timeout (0.2 s)')
+    fast = process_bag(str(fault_bags['clean']), 'fast', dataclasses.replace(opts, task_timeout_s=600.0))
+    assert fast['status'] == 'ok'
