@@ -397,6 +397,9 @@ def cmd_fleet_run(args: argparse.Namespace) -> int:
     if not args.task_timeout >= 0:
         raise ParameterError(f'--task-timeout must be >= 0 s, got {args.task_timeout!r}')
     merged, strict = engine_settings(args)
+    if merged.get('bias_file'):
+        # One file per IMU: bags of many robots (or of one, processed in parallel) would overwrite each other's.
+        raise ParameterError(f'bias_file is one IMU\'s state, not a fleet\'s: remove it (got {merged["bias_file"]!r})')
     out = Path(args.output).absolute()
     opts = FleetOptions(out=str(out), settings=merged, strict=strict, version=__version__, imu_topic=args.imu_topic,
                         mag_topic=args.mag_topic, no_mag=args.no_mag, write_bags=args.write_bags,
