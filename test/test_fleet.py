@@ -162,6 +162,7 @@ def test_worker_killed_mid_run_every_bag_ok_exactly_once_then_resume(cluster, fl
     again = _run([str(fleet_bags), '-o', str(out), '--scheduler', 'tcp://127.0.0.1:9', '--reference', ''])
     assert again.returncode == 0, again.stderr
     assert 'nothing to do' in again.stdout and '0 processed now' in again.stdout
+    # (Exactly once: a bag Dask ran twice around the kill keeps the first result, in the file and in the table.)
     assert _records(out) == recs
 
     # Deleting one bag's result reprocesses that bag only.

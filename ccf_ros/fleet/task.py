@@ -68,6 +68,22 @@ def _write_atomic(path: Path, text: str) -> None:
         raise
 
 
+def _write_first(path: Path, text: str) -> bool:
+    """Like :func:`_write_atomic`, but only if ``path`` does not exist yet (a hard link fails then): when Dask runs a
+    task twice (a worker lost after it finished, before its result was gathered; work stealing), the first complete
+    result stays. Returns whether this one was written."""
+    tmp = path.with_name(f'.{path.name}.{os.getpid()}.tmp')
+    try:
+        tmp.write_text(text)
+        try:
+            os.link(tmp, path)
+        except FileExistsError:
+            return False
+        return True
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
 def filter_metrics(engine: Any) -> dict[str, float]:
     """The filter's figures at the end of a bag: NaN resets, restarts, gyro-only share, final bias and its σ."""
     f = engine.filter
@@ -217,5 +233,10 @@ def process_bag(bag: str, key: str, opts: FleetOptions) -> dict[str, Any]:
     result['wall_s'] = time.perf_counter() - t0
     path = result_path(opts.out, key)
     path.parent.mkdir(parents=True, exist_ok=True)
-    _write_atomic(path, json.dumps(result, allow_nan=True))
+    if not _write_first(path, json.dumps(result, allow_nan=True)):
+        try:
+            first: dict[str, Any] = json.loads(path.read_text())
+            return first  # exactly once: the result already recorded is the bag's
+        except (OSError, ValueError):
+            _write_atomic(path, json.dumps(result, allow_nan=True))  # an unreadable leftover: replaced
     return result
