@@ -42,6 +42,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
+from rclpy.lifecycle import LifecycleNodeMixin, LifecycleState, TransitionCallbackReturn
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
@@ -178,11 +179,34 @@ class CcfNode(Node):
 
     def __init__(self, profile: NodeProfile | str = 'ccf_node', *, node_name: str | None = None,
                  **kwargs: Any) -> None:
-        self.profile = PROFILES[profile] if isinstance(profile, str) else profile
+        self._init_profile(profile)
         super().__init__(node_name or self.profile.node_name, **kwargs)
+        self._configure_ccf()
+        self._open_ccf()
+
+    def _init_profile(self, profile: NodeProfile | str) -> None:
+        """Before the rclpy node exists: the profile, and no entities yet."""
+        self.profile = PROFILES[profile] if isinstance(profile, str) else profile
+        self._callbacks_added = False
+        #: publishers, subscriptions, service and timer exist (between _open_ccf and _close_ccf)
+        self.is_open = False
+        self.pub_rpy: Publisher | None = None
+        self.pub_rpy_raw: Publisher | None = None
+        self.pub_steady: Publisher | None = None
+        self.pub_tf: Publisher | None = None
+        self.sub_mag: Subscription | None = None
+
+    def _configure_ccf(self) -> None:
+        """Declare the parameters (once), validate them and build the engine.
+
+        Raises:
+            ValueError: an invalid parameter value (rclpy's ParameterException for a wrong type).
+        """
         self._defaults = defaults_for(self.profile)
         read_only = self.profile.read_only
         for name, default in self._defaults.items():
+            if self.has_parameter(name):  # a lifecycle node configured again after a cleanup
+                continue
             # Tuples (noise vectors) are declared as arrays.
             value = list(default) if isinstance(default, tuple) else default
             self.declare_parameter(name, value, _descriptor(name, default, name in read_only))
@@ -196,9 +220,15 @@ class CcfNode(Node):
         self._noticed: set[str] = set()
         self._last_bias_t = -math.inf
         self._last_warn = 0.0
-        self.add_on_set_parameters_callback(self._validate_parameters)
-        self.add_post_set_parameters_callback(self._apply_parameters)
+        if not self._callbacks_added:
+            self._callbacks_added = True
+            self.add_on_set_parameters_callback(self._validate_parameters)
+            self.add_post_set_parameters_callback(self._apply_parameters)
 
+    def _open_ccf(self) -> None:
+        """Create the publishers, subscriptions, reset service and timer: messages flow from here on."""
+        self.is_open = True
+        read_only = self.profile.read_only
         # Every entity is in the executor's wait set, rebuilt in Python for every message: the node has few. The
         # secondary publishers go without rclpy's default QoS-event handlers (two waitables each, which only log),
         # debug and TF publishers exist only when asked for, and one timer serves diagnostics and held samples.
@@ -206,10 +236,6 @@ class CcfNode(Node):
         self.pub_imu = self.create_publisher(Imu, self.profile.out_topic, OUTPUT_DEPTH)
         self.pub_bias = self.create_publisher(Vector3Stamped, 'imu/gyro_bias', OUTPUT_DEPTH,
                                               event_callbacks=self._quiet)
-        self.pub_rpy: Publisher | None = None
-        self.pub_rpy_raw: Publisher | None = None
-        self.pub_steady: Publisher | None = None
-        self.pub_tf: Publisher | None = None
         self._tf_type: type[Any] | None = None
         self._tf_warned = False
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10, event_callbacks=self._quiet)
@@ -217,7 +243,6 @@ class CcfNode(Node):
         # The executor serves ready subscriptions in creation order: magnetometer first, so that a magnetometer
         # sample and the IMU sample with the same stamp pair as they do in `ccf replay` (bag order). A profile whose
         # use_mag is read-only and false does not subscribe it (as imu_tools).
-        self.sub_mag: Subscription | None = None
         if self._settings['use_mag'] or 'use_mag' not in read_only:
             self.sub_mag = self.create_subscription(MagneticField, self.profile.mag_topic, self._on_mag_raw,
                                                     self._input_qos(), raw=True,
@@ -242,6 +267,24 @@ class CcfNode(Node):
             f'formulation={self._settings["formulation"]} world_frame={self._settings["world_frame"]} '
             f'use_mag={self._settings["use_mag"]}, listening on {inputs}'
         )
+
+    def _close_ccf(self) -> None:
+        """Answer the held samples, then destroy what :meth:`_open_ccf` made (and the debug/TF publishers)."""
+        if not self.is_open:
+            return
+        self._answer_all(self.sync.flush(time.monotonic()))
+        self.is_open = False
+        for sub in (self.sub_mag, self.sub_imu):
+            if sub is not None:
+                self.destroy_subscription(sub)
+        self.sub_mag = None
+        for pub in (self.pub_imu, self.pub_bias, self.pub_diag, self.pub_rpy, self.pub_rpy_raw, self.pub_steady,
+                    self.pub_tf):
+            if pub is not None:
+                self.destroy_publisher(pub)
+        self.pub_rpy = self.pub_rpy_raw = self.pub_steady = self.pub_tf = None
+        self.destroy_service(self.srv_reset)
+        self.destroy_timer(self.timer)
 
     def _input_qos(self) -> QoSProfile:
         """A new input profile per subscription (rclpy writes the overrides into the profile it is given)."""
@@ -270,6 +313,9 @@ class CcfNode(Node):
         self._world_frame = str(st['world_frame'])
         debug = bool(st['publish_debug_topics'])
         prof = self.profile
+        if not self.is_open:  # a lifecycle node not active: the publishers are made on activation
+            self._debug = self._steady = self._tf = False
+            return
         if debug and self.pub_rpy is None and prof.rpy_filtered_topic:
             self.pub_rpy = self._quiet_publisher(Vector3Stamped, prof.rpy_filtered_topic)
         if debug and self.pub_rpy_raw is None and prof.rpy_raw_topic:
@@ -588,6 +634,68 @@ class CcfNode(Node):
         self.pub_diag.publish(arr)
 
 
+class CcfLifecycleNode(LifecycleNodeMixin, CcfNode):
+    """``ccf_lifecycle_node``: :class:`CcfNode` as a managed (lifecycle) node, for bring-ups that activate nodes in
+    order (Nav2's lifecycle manager, ``ros2 lifecycle set``).
+
+    configure: parameters declared (once) and validated, the engine built (an invalid value: the transition fails
+    with the reason logged, the node stays unconfigured); activate: publishers, subscriptions, ``~/reset`` and the
+    timer made, messages flow; deactivate: held samples answered, all of them destroyed (parameters stay, the
+    estimate too); cleanup: the filter state dropped (the next configure starts a fresh estimate); shutdown, from
+    every state: whatever exists is destroyed.
+    """
+
+    def __init__(self, profile: NodeProfile | str = 'ccf_node', *, node_name: str | None = None,
+                 **kwargs: Any) -> None:
+        self._init_profile(profile)
+        self._configured = False
+        Node.__init__(self, node_name or self.profile.node_name, **kwargs)
+        LifecycleNodeMixin.__init__(self, enable_communication_interface=True)
+
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        try:
+            self._configure_ccf()
+        except (ValueError, ParameterException) as err:
+            self.get_logger().error(f'configure failed: {err}')
+            return TransitionCallbackReturn.FAILURE
+        self._configured = True
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._open_ccf()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._close_ccf()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.engine.reset()
+        self.sync.reset()
+        self.stats = InputStats()
+        self._configured = False
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._close_ccf()
+        self._configured = False
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._close_ccf()
+        self._configured = False
+        return TransitionCallbackReturn.SUCCESS
+
+    def _validate_parameters(self, params: list[Parameter]) -> SetParametersResult:
+        if not self._configured:  # checked on configure
+            return SetParametersResult(successful=True)
+        return super()._validate_parameters(params)
+
+    def _apply_parameters(self, params: list[Parameter]) -> None:
+        if self._configured:
+            super()._apply_parameters(params)
+
+
 def _nothing() -> None:
     return None
 
@@ -600,12 +708,13 @@ def _is_startup_error(err: BaseException) -> bool:
     return isinstance(err, RuntimeError) and str(err).startswith('Unexpected QoS override')
 
 
-def main(args: list[str] | None = None, profile: str = 'ccf_node') -> None:
-    """Entry point of ``ccf_node`` / ``ros2 run ccf_ros ccf_node`` (and, with ``profile``, of the drop-ins)."""
-    node = None
+def main(args: list[str] | None = None, profile: str = 'ccf_node', lifecycle: bool = False) -> None:
+    """Entry point of ``ccf_node`` / ``ros2 run ccf_ros ccf_node`` (and, with ``profile``, of the drop-ins; with
+    ``lifecycle``, of ``ccf_lifecycle_node``)."""
+    node: CcfNode | None = None
     try:
         rclpy.init(args=args)
-        node = CcfNode(profile)
+        node = CcfLifecycleNode(profile) if lifecycle else CcfNode(profile)
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
@@ -620,6 +729,11 @@ def main(args: list[str] | None = None, profile: str = 'ccf_node') -> None:
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+
+
+def lifecycle_main(args: list[str] | None = None) -> None:
+    """Entry point of ``ccf_lifecycle_node``: ccf_node as a managed node (starts unconfigured)."""
+    main(args, lifecycle=True)
 
 
 def imu_filter_madgwick_main(args: list[str] | None = None) -> None:
