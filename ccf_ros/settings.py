@@ -42,6 +42,10 @@ NODE_DEFAULTS: dict[str, Any] = {
     'publish_tf': False,
     'fixed_frame': 'odom',
     'reverse_tf': False,
+    'motion_hint_topic': '',
+    'motion_hint_linear_m_s': 0.01,
+    'motion_hint_angular_rad_s': 0.01,
+    'motion_hint_timeout_s': 0.5,
 }
 
 #: imu_tools gains with no ccf meaning: accepted (a YAML written for imu_tools applies unchanged) and, when set to a
@@ -121,6 +125,12 @@ DESCRIPTIONS: dict[str, str] = {
     'publish_tf': 'node: broadcast the orientation as a transform fixed_frame -> IMU frame on /tf',
     'fixed_frame': 'node: parent frame of the published transform',
     'reverse_tf': 'node: publish the inverse transform (IMU frame -> fixed_frame)',
+    'motion_hint_topic': 'node: nav_msgs/Odometry or geometry_msgs/TwistStamped topic (type found on the graph) '
+                         'saying whether the robot moves: the gyro bias is learnt at rest only when it says still; '
+                         '"" = none',
+    'motion_hint_linear_m_s': 'node: the hint says still below this speed, m/s ...',
+    'motion_hint_angular_rad_s': 'node: ... and below this turn rate, rad/s',
+    'motion_hint_timeout_s': 'node: a hint older than this (s, by stamps) no longer counts (rest from the IMU alone)',
     **{name: f'imu_tools gain, accepted; ccf uses {role}' for name, (_, role) in IMU_TOOLS_GAINS.items()},
 }
 
@@ -264,6 +274,8 @@ def config_yaml() -> str:
             text = repr(round(value, 10))
         elif isinstance(value, tuple):
             text = '[' + ', '.join(repr(round(float(v), 10)) for v in value) + ']'
+        elif value == '':
+            text = "''"  # YAML's empty value would be null
         else:
             text = str(value)
         lines.append(f'    {name}: {text}  # {DESCRIPTIONS[name]}')

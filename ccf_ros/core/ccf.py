@@ -664,7 +664,8 @@ class QuaternionCcf(OrientationFilter):
             dax = ax - fx
             day = ay - fy
             daz = az - fz
-            if dax * dax + day * day + daz * daz < c.rest_acc2:
+            # A motion hint saying "moving" (odometry) rules rest out: a slow steady turn is not learnt as bias.
+            if dax * dax + day * day + daz * daz < c.rest_acc2 and self.still_hint is not False:
                 k = c.k_rest
                 if self._rest_s:
                     glx, gly, glz = self._gyro_lp
@@ -1021,3 +1022,11 @@ class QuaternionCcf(OrientationFilter):
         vi = p.incl_sigma_rad * p.incl_sigma_rad + self._var_incl
         vh = self._var_head + (p.heading_sigma_rad * p.heading_sigma_rad if self._heading_known else 0.0)
         return (vi, vi, vh)
+
+    def _rotate_about_up(self, angle_rad: float) -> None:
+        """:meth:`OrientationFilter.set_heading`'s turn: the LCF orientation and the NCF offset ``dn`` (world frame)
+        turn together, so the cascade sees no step (body-frame state: bias, filtered gravity, unchanged)."""
+        super()._rotate_about_up(angle_rad)
+        c, s = math.cos(angle_rad), math.sin(angle_rad)
+        x = self._x
+        self._x = (*x[:6], c * x[6] - s * x[7], s * x[6] + c * x[7], *x[8:])
