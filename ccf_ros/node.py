@@ -31,7 +31,8 @@ from typing import Any
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import TransformStamped, Vector3Stamped
+from geometry_msgs.msg import PoseWithCovarianceStamped, TransformStamped, TwistStamped, Vector3Stamped
+from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import (
     FloatingPointRange,
     IntegerRange,
@@ -195,6 +196,11 @@ class CcfNode(Node):
         self.pub_steady: Publisher | None = None
         self.pub_tf: Publisher | None = None
         self.sub_mag: Subscription | None = None
+        self.sub_hint: Subscription | None = None
+        #: the motion hint topic subscribed (resolved name), or waited for on the graph ('' none)
+        self._hint_topic = ''
+        #: set_pose messages applied
+        self.n_set_pose = 0
 
     def _configure_ccf(self) -> None:
         """Declare the parameters (once), validate them and build the engine.
@@ -252,6 +258,8 @@ class CcfNode(Node):
         self._take_mag = self._taker(self.sub_mag) if self.sub_mag is not None else _nothing
         self._take_imu = self._taker(self.sub_imu)
         self.srv_reset = self.create_service(Trigger, '~/reset', self._on_reset)
+        # robot_localization's idiom: a pose on set_pose sets the heading (its orientation's yaw).
+        self.sub_set_pose = self.create_subscription(PoseWithCovarianceStamped, 'set_pose', self._on_set_pose, 10)
         self._last_diag = time.monotonic()
         # A steady clock: held samples and diagnostics keep their pace with use_sim_time too.
         self.timer = self.create_timer(self.DIAGNOSTICS_PERIOD_S, self._on_timer,
@@ -274,10 +282,11 @@ class CcfNode(Node):
             return
         self._answer_all(self.sync.flush(time.monotonic()))
         self.is_open = False
-        for sub in (self.sub_mag, self.sub_imu):
+        for sub in (self.sub_mag, self.sub_imu, self.sub_set_pose, self.sub_hint):
             if sub is not None:
                 self.destroy_subscription(sub)
-        self.sub_mag = None
+        self.sub_mag = self.sub_hint = None
+        self._hint_topic = ''
         for pub in (self.pub_imu, self.pub_bias, self.pub_diag, self.pub_rpy, self.pub_rpy_raw, self.pub_steady,
                     self.pub_tf):
             if pub is not None:
@@ -285,6 +294,57 @@ class CcfNode(Node):
         self.pub_rpy = self.pub_rpy_raw = self.pub_steady = self.pub_tf = None
         self.destroy_service(self.srv_reset)
         self.destroy_timer(self.timer)
+
+    def _resolved_hint_topic(self) -> str:
+        topic = str(self._settings['motion_hint_topic'])
+        return self.resolve_topic_name(topic) if topic else ''
+
+    def _subscribe_motion_hint(self) -> None:
+        """Subscribe motion_hint_topic with the type it has on the graph (nav_msgs/Odometry or
+        geometry_msgs/TwistStamped); until a publisher shows it, the timer tries again."""
+        if self.sub_hint is not None:
+            self.destroy_subscription(self.sub_hint)
+            self.sub_hint = None
+            self.engine.filter.still_hint = None
+        topic = self._hint_topic = self._resolved_hint_topic()
+        if not topic:
+            return
+        types = dict(self.get_topic_names_and_types()).get(topic, [])
+        # A best-effort reader matches reliable and best-effort writers alike.
+        qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
+        if 'nav_msgs/msg/Odometry' in types:
+            self.sub_hint = self.create_subscription(Odometry, topic, self._on_odometry, qos)
+        elif 'geometry_msgs/msg/TwistStamped' in types:
+            self.sub_hint = self.create_subscription(TwistStamped, topic, self._on_twist, qos)
+        elif types:
+            self._warn_throttled(f'motion_hint_topic {topic} has type {types}: nav_msgs/msg/Odometry or '
+                                 'geometry_msgs/msg/TwistStamped expected; no motion hint')
+            return
+        if self.sub_hint is not None:
+            self.get_logger().info(f'motion hint from {topic} ({types[0]})')
+
+    def _on_odometry(self, msg: Odometry) -> None:
+        self._motion_hint(msg.header, msg.twist.twist)
+
+    def _on_twist(self, msg: TwistStamped) -> None:
+        self._motion_hint(msg.header, msg.twist)
+
+    def _motion_hint(self, header: Any, twist: Any) -> None:
+        """Still: speed below motion_hint_linear_m_s and turn rate below motion_hint_angular_rad_s."""
+        v, w = twist.linear, twist.angular
+        still = (v.x * v.x + v.y * v.y + v.z * v.z < self._hint_lin2
+                 and w.x * w.x + w.y * w.y + w.z * w.z < self._hint_ang2)
+        self.engine.on_motion_hint(stamp_s(header), still, self._hint_timeout)
+
+    def _on_set_pose(self, msg: PoseWithCovarianceStamped) -> None:
+        """Set the output's heading to the yaw of the pose's orientation (roll, pitch and position ignored)."""
+        o = msg.pose.pose.orientation
+        yaw = rpy_of(from_xyzw(o.x, o.y, o.z, o.w))[2]
+        # Samples held for their magnetometer sample came before the pose: answered with the old heading.
+        self._answer_all(self.sync.flush(time.monotonic()))
+        how = self.engine.set_heading(yaw)
+        self.n_set_pose += 1
+        self.get_logger().info(f'set_pose: heading {yaw:.4f} rad ({how})')
 
     def _input_qos(self) -> QoSProfile:
         """A new input profile per subscription (rclpy writes the overrides into the profile it is given)."""
@@ -313,9 +373,14 @@ class CcfNode(Node):
         self._world_frame = str(st['world_frame'])
         debug = bool(st['publish_debug_topics'])
         prof = self.profile
+        self._hint_lin2 = float(st['motion_hint_linear_m_s']) ** 2
+        self._hint_ang2 = float(st['motion_hint_angular_rad_s']) ** 2
+        self._hint_timeout = float(st['motion_hint_timeout_s'])
         if not self.is_open:  # a lifecycle node not active: the publishers are made on activation
             self._debug = self._steady = self._tf = False
             return
+        if self._hint_topic != self._resolved_hint_topic():
+            self._subscribe_motion_hint()
         if debug and self.pub_rpy is None and prof.rpy_filtered_topic:
             self.pub_rpy = self._quiet_publisher(Vector3Stamped, prof.rpy_filtered_topic)
         if debug and self.pub_rpy_raw is None and prof.rpy_raw_topic:
@@ -489,6 +554,8 @@ class CcfNode(Node):
         diagnostics once a second, and set the next wake-up: the earlier of the two."""
         now = time.monotonic()
         self._answer_all(self.sync.expire(now))
+        if self._hint_topic and self.sub_hint is None:
+            self._subscribe_motion_hint()
         if now - self._last_diag >= self.DIAGNOSTICS_PERIOD_S - 0.002:
             self._last_diag = now
             self._publish_diagnostics()
