@@ -677,9 +677,10 @@ class CcfNode(Node):
         return resp
 
     # --- diagnostics --------------------------------------------------------------------------------------------
-    def diagnostics(self) -> Diagnostics:
-        """Level, message and values of the node's status (rules in :func:`ccf_ros.node_support.diagnostics`)."""
-        return diagnostics(time.monotonic(), self.stats, self.engine, self.sync.stats(),
+    def diagnostics(self, now: float | None = None) -> Diagnostics:
+        """Level, message and values of the node's status (rules in :func:`ccf_ros.node_support.diagnostics`) at
+        ``now`` (s, time.monotonic; None: now)."""
+        return diagnostics(time.monotonic() if now is None else now, self.stats, self.engine, self.sync.stats(),
                            use_mag=bool(self._settings['use_mag']),
                            mag_timeout_s=float(self._settings['mag_timeout_s']))
 
