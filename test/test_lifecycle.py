@@ -173,3 +173,15 @@ def test_launch_file_starts_the_lifecycle_node_on_lifecycle_true():
         assert kw['condition'].func.id == condition
     setup = (Path(__file__).resolve().parents[1] / 'setup.py').read_text()
     assert "'ccf_lifecycle_node = ccf_ros.node:lifecycle_main'" in setup
+
+
+def test_component_launch_file_starts_the_plain_drop_in():
+    """launch/imu_filter_component.launch.py (for users of imu_tools' component launch file) includes
+    imu_filter.launch.py, the plain imu_filter_madgwick_node, and loads no component container."""
+    import ast
+
+    text = (Path(__file__).resolve().parents[1] / 'launch' / 'imu_filter_component.launch.py').read_text()
+    tree = ast.parse(text)
+    names = {n.func.id for n in ast.walk(tree) if isinstance(n, ast.Call) and isinstance(n.func, ast.Name)}
+    assert 'IncludeLaunchDescription' in names and 'ComposableNodeContainer' not in names
+    assert "'imu_filter.launch.py'" in text
