@@ -582,8 +582,14 @@ def test_live_node_survives_faults_and_answers_every_sample(faulty_sim):
     if not np.array_equal(res.quat, q_ref):
         diff = np.nonzero(np.any(res.quat != q_ref, axis=1))[0]
         _, q_alt = _engine_over_bag(path, imu_first_after_silence=True)
-        assert np.array_equal(res.quat, q_alt), \
-            f'first differences at samples {diff[:5]} of {len(q_ref)}; diagnostics {d}'
+        if not np.array_equal(res.quat, q_alt):
+            # The other exception, timing: on a loaded machine a magnetometer sample can come more than HOLD_S
+            # after its IMU sample, which is then answered without it (by design: the node does not wait longer).
+            # Counted as hold timeouts; the answers then differ by one heading correction, not by a mis-pairing.
+            timeouts = int(d['hold timeouts'])
+            assert timeouts > 0, f'first differences at samples {diff[:5]} of {len(q_ref)}; diagnostics {d}'
+            angle = 2 * np.arccos(np.clip(np.abs(np.sum(res.quat * q_ref, axis=1)), 0.0, 1.0))
+            assert np.degrees(angle.max()) < 1.0, (timeouts, np.degrees(angle.max()))
     assert d['samples answered'] == str(res.n_imu_sent)
     assert int(d['skipped: skipped_bad_gyro']) == injected['bad_gyro']
     assert int(d['skipped: skipped_stamp']) == injected['bad_stamp']
