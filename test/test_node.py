@@ -558,8 +558,20 @@ def test_live_node_matches_replay_on_fast_rotation(tmp_path):
     t_ref, q_ref = _engine_over_bag(bag)
     assert res.exit_code == 0 and len(res.t_s) == res.n_imu_sent == len(t_ref) > 4000
     np.testing.assert_array_equal(res.t_s, t_ref)
-    diff = np.nonzero(np.any(res.quat != q_ref, axis=1))[0]  # bit for bit: every sample paired as in bag order
-    assert len(diff) == 0, f'first differences at samples {diff[:5]} of {len(q_ref)}; diagnostics {res.diagnostics}'
+    if not np.array_equal(res.quat, q_ref):  # bit for bit: every sample paired as in bag order
+        _differ_only_by_hold_timeouts(res, q_ref)
+
+
+def _differ_only_by_hold_timeouts(res, q_ref):
+    """Live answers that are not replay's bit for bit: allowed only for timing. On a loaded machine a magnetometer
+    sample can come more than HOLD_S after its IMU sample, which is then answered without it (by design: the node
+    does not wait longer). Counted as hold timeouts; the answers then differ by skipped heading corrections (less
+    than 1 degree), not by a mis-pairing."""
+    d = res.diagnostics
+    diff = np.nonzero(np.any(res.quat != q_ref, axis=1))[0]
+    assert int(d['hold timeouts']) > 0, f'first differences at samples {diff[:5]} of {len(q_ref)}; diagnostics {d}'
+    angle = np.degrees(2 * np.arccos(np.clip(np.abs(np.sum(res.quat * q_ref, axis=1)), 0.0, 1.0)))
+    assert angle.max() < 1.0, (d['hold timeouts'], angle.max())
 
 
 def test_live_node_survives_faults_and_answers_every_sample(faulty_sim):
@@ -580,16 +592,9 @@ def test_live_node_survives_faults_and_answers_every_sample(faulty_sim):
     # first sample can overtake it over DDS (nothing waits while it is silent), and is then answered without it.
     d = res.diagnostics
     if not np.array_equal(res.quat, q_ref):
-        diff = np.nonzero(np.any(res.quat != q_ref, axis=1))[0]
         _, q_alt = _engine_over_bag(path, imu_first_after_silence=True)
         if not np.array_equal(res.quat, q_alt):
-            # The other exception, timing: on a loaded machine a magnetometer sample can come more than HOLD_S
-            # after its IMU sample, which is then answered without it (by design: the node does not wait longer).
-            # Counted as hold timeouts; the answers then differ by one heading correction, not by a mis-pairing.
-            timeouts = int(d['hold timeouts'])
-            assert timeouts > 0, f'first differences at samples {diff[:5]} of {len(q_ref)}; diagnostics {d}'
-            angle = 2 * np.arccos(np.clip(np.abs(np.sum(res.quat * q_ref, axis=1)), 0.0, 1.0))
-            assert np.degrees(angle.max()) < 1.0, (timeouts, np.degrees(angle.max()))
+            _differ_only_by_hold_timeouts(res, q_ref)
     assert d['samples answered'] == str(res.n_imu_sent)
     assert int(d['skipped: skipped_bad_gyro']) == injected['bad_gyro']
     assert int(d['skipped: skipped_stamp']) == injected['bad_stamp']
