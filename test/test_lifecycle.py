@@ -26,6 +26,11 @@ UNCONFIGURED, INACTIVE, ACTIVE, FINALIZED = (State.PRIMARY_STATE_UNCONFIGURED, S
 SHUTDOWN_FROM = {UNCONFIGURED: Transition.TRANSITION_UNCONFIGURED_SHUTDOWN,
                  INACTIVE: Transition.TRANSITION_INACTIVE_SHUTDOWN, ACTIVE: Transition.TRANSITION_ACTIVE_SHUTDOWN}
 
+#: The primary state each transition leads to.
+TARGET = {Transition.TRANSITION_CONFIGURE: INACTIVE, Transition.TRANSITION_ACTIVATE: ACTIVE,
+          Transition.TRANSITION_DEACTIVATE: INACTIVE, Transition.TRANSITION_CLEANUP: UNCONFIGURED,
+          **dict.fromkeys(SHUTDOWN_FROM.values(), FINALIZED)}
+
 
 @pytest.fixture(scope='module')
 def inputs(sim_bag):
@@ -43,19 +48,36 @@ class Manager:
         self.get = h.io.create_client(GetState, f'{name}/get_state')
         assert self.change.wait_for_service(timeout_sec=20) and self.get.wait_for_service(timeout_sec=20)
 
-    def _call(self, client, request):
+    def _call(self, client, request, timeout_s=3.0):
+        """The response, or None when none came within ``timeout_s``: a request sent just after wait_for_service
+        can be lost while the server's side of the service is still matching the client (DDS discovery is not
+        symmetric), most often on a loaded machine."""
         fut = client.call_async(request)
-        self.h.ex.spin_until_future_complete(fut, timeout_sec=20)
-        assert fut.done(), 'lifecycle service did not answer'
+        self.h.ex.spin_until_future_complete(fut, timeout_sec=timeout_s)
+        if not fut.done():
+            client.remove_pending_request(fut)
+            return None
         return fut.result()
 
     def state(self) -> int:
-        return self._call(self.get, GetState.Request()).current_state.id
+        for _ in range(10):  # GetState is idempotent: asked again until answered
+            r = self._call(self.get, GetState.Request())
+            if r is not None:
+                return r.current_state.id
+        raise AssertionError('GetState did not answer')
 
     def transition(self, transition_id: int) -> bool:
+        """Request a transition; True if it succeeded. Unanswered: the state says whether it happened (the
+        response lost) or not (the request lost: sent again)."""
         req = ChangeState.Request()
         req.transition.id = transition_id
-        return self._call(self.change, req).success
+        for _ in range(5):
+            r = self._call(self.change, req)
+            if r is not None:
+                return r.success
+            if self.state() == TARGET[transition_id]:
+                return True
+        raise AssertionError('ChangeState did not answer')
 
 
 def lifecycle_node(context, **params):
