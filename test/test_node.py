@@ -417,9 +417,10 @@ def test_reset_service_and_diagnostics(context, inputs):
         assert h.spin_until(lambda: h.diag, 3.0)
         status = h.diag[-1].status[0]
         assert status.name.startswith('ccf_node')
-        # Published up to a second after the input stopped: OK, or WARN for the magnetometer's age by then.
-        assert (status.level, status.message) == (b'\x00', 'ok') or (
-            status.level == b'\x01' and status.message.startswith('no magnetometer for'))
+        # Published up to a second after the input stopped: OK, or WARN for the magnetometer's age by then (or, on a
+        # loaded machine where that second passed before it went out, ERROR for the input's age).
+        assert (status.level, status.message) in ((b'\x00', 'ok'), (b'\x02', 'no IMU input for more than 1 s')) or (
+            status.level == b'\x01' and status.message.startswith('no magnetometer for')), status
         assert {kv.key for kv in status.values} == set(v)
         cli = h.io.create_client(Trigger, '/ccf_node/reset')
         assert cli.wait_for_service(timeout_sec=5)
