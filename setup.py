@@ -50,6 +50,8 @@ setup(
         'console_scripts': [
             'ccf = ccf_ros.cli:main',
             'ccf_node = ccf_ros.node:main',
+            # ccf_node as a managed node (rclpy.lifecycle): unconfigured until configured and activated.
+            'ccf_lifecycle_node = ccf_ros.node:lifecycle_main',
             # imu_tools drop-ins: `package='ccf_ros'` in a launch file written for imu_filter_madgwick or
             # imu_complementary_filter, nothing else changed (ccf_ros/compat.py).
             'imu_filter_madgwick_node = ccf_ros.node:imu_filter_madgwick_main',

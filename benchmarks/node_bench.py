@@ -17,7 +17,12 @@ see the same machine load, which on a shared machine changes by the second).
    node must not hold IMU samples for it. Target: p50 and p99 within 1.5 x (+0.5 ms) of the full-rate run.
 4. With ``--broad`` (and the shared data present): a BROAD trial at 286 Hz through ccf_node vs the offline engine.
 
-Usage: python benchmarks/node_bench.py [--chunks 20] [--throughput-rounds 3] [--broad] [--node-cmd CMD]
+5. With ``--cpu``, instead of 1-4: CPU time per message of both nodes at 200, 400 and 1000 Hz (magnetometer in
+   lock-step), in 2 s chunks alternating between the nodes, and ccf_node's own code's share of its CPU time per
+   message (``node_share.py``: thread CPU time of the node's per-message code, rclpy's publish excluded). Targets:
+   ccf_node <= 0.8 x pass-through per message, our code <= 25 % of ccf_node's.
+
+Usage: python benchmarks/node_bench.py [--chunks 20] [--throughput-rounds 3] [--broad] [--node-cmd CMD] [--cpu]
 (sets ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; uses ROS_DOMAIN_ID if set, else a random domain of its own)
 """
 
@@ -240,7 +245,16 @@ def main() -> None:
     ap.add_argument('--broad', action='store_true', help='also play a BROAD trial through ccf_node (about 3 min)')
     ap.add_argument('--node-cmd', help='command of the node under test instead of the installed ccf_node '
                                        '(e.g. an older version, to compare)')
+    ap.add_argument('--cpu', action='store_true', help='CPU per message at 200/400/1000 Hz and our code\'s share')
     args = ap.parse_args()
+    if args.cpu:
+        cpu_per_message(args.chunks)
+    else:
+        throughput_and_latency(args)
+
+
+def throughput_and_latency(args: argparse.Namespace) -> None:
+    """Parts 1-4 of the module docstring."""
     rates = [250, 500, 750, 1000, 1250, 1500, 1750, 2000, 2500, 3000, 3500, 4000, 5000, 6000, 8000]
     cmds = {'pass-through': [sys.executable, str(HERE / 'passthrough_node.py'), '--ros-args'],
             'ccf_node': (args.node_cmd.split() if args.node_cmd else node_command())
@@ -313,6 +327,49 @@ def main() -> None:
             broad_through_node()
         else:
             print(f'{BROAD} not found: BROAD run skipped')
+
+
+def cpu_per_message(chunks: int, rates: tuple[float, ...] = (200.0, 400.0, 1000.0)) -> None:
+    """CPU time per answered IMU message (with its magnetometer message) of both nodes at each rate, interleaved
+    in 2 s chunks, and the share of ccf_node's own per-message code (a fresh pair of nodes per rate)."""
+    import tempfile
+
+    print(f'ROS_DOMAIN_ID={os.environ["ROS_DOMAIN_ID"]}, input QoS {QOS_IN[0]} depth {QOS_IN[1]}; {chunks} chunks of '
+          f'2 s per node and rate, interleaved; load average {os.getloadavg()[0]:.1f}', flush=True)
+    cmds = {'pass-through': [sys.executable, str(HERE / 'passthrough_node.py'), '--ros-args'],
+            'ccf_node': [sys.executable, str(HERE / 'node_share.py'), '--ros-args', '--log-level', 'error']}
+    labels = list(cmds)
+    rows = []
+    for rate in rates:
+        share_file = Path(tempfile.mkstemp(prefix='ccf_share_')[1])
+        os.environ['CCF_SHARE_OUT'] = str(share_file)
+        rig = Rig(cmds)
+        cpu: dict[str, list[float]] = {k: [] for k in labels}
+        n_msg: dict[str, int] = dict.fromkeys(labels, 0)
+        lost: dict[str, int] = dict.fromkeys(labels, 0)
+        try:
+            for r in range(chunks):
+                for label in order(labels, r):
+                    sent, cpu_used = rig.send(label, rate, 2.0, 1, settle_s=0.3)
+                    n_answered = len(rig.answered(label, sent))
+                    lost[label] += len(sent) - n_answered
+                    cpu[label].append(cpu_used)
+                    # Per answered message: a node that falls behind drops messages at its queue, unprocessed.
+                    n_msg[label] += n_answered
+        finally:
+            codes = rig.close()
+        ours_ns, n_imu, _ = (int(v) for v in share_file.read_text().split())
+        share_file.unlink()
+        per = {k: sum(cpu[k]) / n_msg[k] * 1e6 for k in labels}
+        # Our code over every IMU message the node took (the chunks' and the rig's start-up probe alike).
+        ours = ours_ns / 1e3 / max(n_imu, 1)
+        rows.append((rate, per['ccf_node'], per['pass-through'], ours))
+        print(f'  {rate:6.0f} Hz: ccf_node {per["ccf_node"]:6.1f} us/message, pass-through {per["pass-through"]:6.1f} '
+              f'us/message, ratio {per["ccf_node"] / per["pass-through"]:.2f}; our code {ours:5.1f} us/message = '
+              f'{100 * ours / per["ccf_node"]:.0f} % of ccf_node\'s; lost {lost}; exit codes {codes}', flush=True)
+    print('rate Hz | ccf_node us/msg | pass-through us/msg | ratio (target <= 0.8) | our code us/msg | share (<= 25 %)')
+    for rate, c, pt, ours in rows:
+        print(f'{rate:7.0f} | {c:15.1f} | {pt:19.1f} | {c / pt:21.2f} | {ours:15.1f} | {100 * ours / c:5.0f} %')
 
 
 def broad_through_node() -> None:

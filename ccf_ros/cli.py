@@ -118,12 +118,18 @@ def _need_rclpy(what: str) -> None:
 
 def cmd_replay(args: argparse.Namespace) -> int:
     from .offline.replay import replay
+    from .settings import NODE_DEFAULTS
 
     engine = _engine(args)
+    from_files, given = _settings(args)
+    st = {**NODE_DEFAULTS, **from_files, **given}
     summary = replay(
         args.bag,
         args.output,
         engine,
+        motion_hint_topic=args.motion_hint_topic,
+        motion_hint=(float(st['motion_hint_linear_m_s']), float(st['motion_hint_angular_rad_s']),
+                     float(st['motion_hint_timeout_s'])),
         imu_topic=args.imu_topic,
         mag_topic=args.mag_topic,
         detect=True,
@@ -132,9 +138,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
         copy_input=args.copy_input,
         overwrite=args.overwrite,
     )
-    from .settings import NODE_DEFAULTS
-
-    node_only = sorted(set(_settings(args)[1]) & set(NODE_DEFAULTS))
+    hint_settings = {'motion_hint_linear_m_s', 'motion_hint_angular_rad_s', 'motion_hint_timeout_s'}
+    node_only = sorted(set(_settings(args)[1]) & set(NODE_DEFAULTS) - hint_settings)
     if node_only:
         summary.warnings.append(f'{", ".join(node_only)}: node settings, without effect on replay (it writes '
                                 '/imu/gyro_bias for every sample)')
@@ -461,6 +466,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument('-o', '--output', required=True, help='output rosbag2 directory')
     r.add_argument('--imu-topic', help=IMU_TOPIC_HELP)
     r.add_argument('--mag-topic', help=MAG_TOPIC_HELP)
+    r.add_argument('--motion-hint-topic', metavar='TOPIC',
+                   help='nav_msgs/Odometry or geometry_msgs/TwistStamped in the bag: the gyro bias is learnt at rest '
+                        'only when it says still (motion_hint_* settings), as the node does')
     r.add_argument('--no-mag', action='store_true', help='ignore the magnetometer (6-D filter)')
     r.add_argument('--params-file', action='append', metavar='FILE',
                    help='ROS 2 parameters YAML, as for the node (config/ccf.yaml, a ccf calibrate-mag result); '

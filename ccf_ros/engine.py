@@ -19,7 +19,15 @@ from .core.base import ANSWERED_BELOW, OrientationFilter, Status, acc_usable, ma
 from .core.ccf import GRAVITY_M_S2, CcfParams
 from .core.hard_iron import HardIronEstimator, HardIronStatus
 from .core.pairing import MagPairer
-from .core.quaternion import WORLD_FRAMES, level_quat, quat_from_acc_mag_scalar, quat_mul_scalar, relevel, to_xyzw
+from .core.quaternion import (
+    WORLD_FRAMES,
+    level_quat,
+    quat_from_acc_mag_scalar,
+    quat_mul_scalar,
+    relevel,
+    rpy_of,
+    to_xyzw,
+)
 from .frames import IDENTITY, Mat3, apply, is_identity, matmul, transpose
 from .settings import AdapterSettings
 from .state_file import State, StateFileError, read_state, write_state
@@ -102,6 +110,12 @@ class ImuEngine:
         self.on_warning: Callable[[str], None] | None = None
         #: online hard-iron estimator (mag_online_calibration; None: off)
         self.hard_iron: HardIronEstimator | None = None
+        #: yaw added to the output by set_heading in 9-D (rad; the magnetometer holds the filter to north)
+        self.heading_offset_rad = 0.0
+        #: a heading to give the filter once it initialises without a magnetometer heading (restore_heading)
+        self._pending_heading: float | None = None
+        #: the motion hint expires at this stamp (s; inf: no hint in force)
+        self._hint_until = math.inf
         self.set_settings(self.settings)
         if self.settings.bias_file:
             self.load_state(self.settings.bias_file)
@@ -125,7 +139,7 @@ class ImuEngine:
         # Magnetometer: m_out = R_mount R_mag S (m_raw - b), one matrix.
         s = matmul(rot, matmul(settings.mag_matrix, settings.mag_soft_iron))
         self._mag_cal = None if (bx == by == bz == 0.0 and is_identity(s)) else (bx, by, bz, *s)
-        turn = settings.yaw_turn_rad
+        turn = settings.yaw_turn_rad + self.heading_offset_rad
         # q_out = Rz(turn) ⊗ q: a rotation about the output world frame's z (up in ENU/NWU, down in NED), as
         # imu_tools turns its output; applied in one place (_output).
         self._turn = None if turn == 0.0 else (math.cos(0.5 * turn), math.sin(0.5 * turn))
@@ -159,6 +173,7 @@ class ImuEngine:
         self._t_last = -math.inf
         self._stateless_q = None
         self._stateless_heading = False
+        self._clear_heading_offset()
 
     def reset(self) -> None:
         """Fresh filter state (parameters kept); counters keep counting. Magnetometer samples stay paired."""
@@ -171,6 +186,7 @@ class ImuEngine:
         self._t_last = -math.inf
         self._stateless_q = None
         self._stateless_heading = False
+        self._clear_heading_offset()
 
     def on_mag(self, t_s: float, field: Vec3) -> None:
         """A magnetometer message: stamp (s), field (any unit, body frame), calibrated here before anything else."""
@@ -195,6 +211,28 @@ class ImuEngine:
             acc = (r0 * ax + r1 * ay + r2 * az, r3 * ax + r4 * ay + r5 * az, r6 * ax + r7 * ay + r8 * az)
         return gyr, acc
 
+    def _online_hard_iron(self, t_s: float, gyr: Vec3, mag: Vec3 | None) -> Vec3 | None:
+        """Here, where the magnetometer sample meets the gyro: the estimate pairs them, and the sample reaches the
+        filter with the applied offset subtracted."""
+        hi = self.hard_iron
+        assert hi is not None
+        f = self.filter
+        mag = hi.correct(t_s, gyr, f.gyro_bias, mag)
+        if hi.jumped:
+            f.magnetometer_changed()
+        return mag
+
+    def _far_ahead(self, t_s: float, t_last: float) -> float:
+        """The stamp to use for a sample stamped far after the latest one (rare path)."""
+        t_ahead = self._t_ahead
+        if t_ahead is None or t_s < t_ahead:
+            # A lone stamp far ahead: the filter sees it as a repeat of the latest stamp (skipped and answered with
+            # the current orientation), and nothing moves the clock or the pairing to it.
+            self._t_ahead = t_s
+            return t_last
+        self._t_ahead = None  # the stream goes on from there: a real gap (the filter re-initialises)
+        return t_s
+
     def on_imu(self, t_s: float, gyr: Vec3, acc: Vec3) -> Output | None:
         """An IMU message: stamp (s), rate (rad/s), specific force (m/s²).
 
@@ -205,14 +243,7 @@ class ImuEngine:
             gyr, acc = self._to_output_frame(gyr, acc)
         t_last = self._t_last
         if t_s - t_last > JUMP_AHEAD_S and t_last > -math.inf and t_s - t_last > self.filter.params.max_dt_s:
-            t_ahead = self._t_ahead
-            if t_ahead is None or t_s < t_ahead:
-                # A lone stamp far ahead: the filter sees it as a repeat of the latest stamp (skipped and
-                # answered with the current orientation), and nothing moves the clock or the pairing to it.
-                self._t_ahead = t_s
-                t_s = t_last
-            else:
-                self._t_ahead = None  # the stream goes on from there: a real gap (the filter re-initialises)
+            t_s = self._far_ahead(t_s, t_last)
         elif self._t_ahead is not None:
             self._t_ahead = None
         if t_s < t_last - JUMP_BACK_RESET_S:
@@ -235,17 +266,16 @@ class ImuEngine:
             t_s = self._t_const
         self.clock_s = t_s
         f = self.filter
-        hi = self.hard_iron
-        if hi is not None:
-            # Here, where the magnetometer sample meets the gyro: the estimate pairs them, and the sample reaches the
-            # filter with the applied offset subtracted.
-            mag = hi.correct(t_s, gyr, f.gyro_bias, mag)
-            if hi.jumped:
-                f.magnetometer_changed()
+        if self.hard_iron is not None:
+            mag = self._online_hard_iron(t_s, gyr, mag)
         self.paired_mag = mag
         if self._stateless:
             return self._stateless_output(t_s, gyr, acc, mag)
+        if t_s > self._hint_until:
+            self._expire_hint()
         status = f.update(t_s, gyr, acc, mag)
+        if self._pending_heading is not None and f.initialized:
+            self._apply_pending_heading()
         if status >= ANSWERED_BELOW:
             if not f.initialized:
                 return None
@@ -468,3 +498,62 @@ class ImuEngine:
     def n_nonfinite_resets(self) -> int:
         """Times the filter state became non-finite and was re-initialised."""
         return self._nonfinite_before + self.filter.n_nonfinite_resets
+
+    # --- heading and motion hint --------------------------------------------------------------------------------
+    def _clear_heading_offset(self) -> None:
+        if self.heading_offset_rad:
+            self.heading_offset_rad = 0.0
+            self.set_settings(self.settings)
+
+    def set_heading(self, yaw_rad: float) -> str:
+        """Make the output's yaw (Z-Y-X, about the world frame's z, yaw_offset included) ``yaw_rad`` from now on.
+
+        With a magnetometer heading (9-D) the filter stays referenced to north: the output is turned by an offset
+        kept until :meth:`reset`. Without (6-D) the filter's state itself is turned. Returns ``offset``,
+        ``state``, or ``not initialised`` (nothing done).
+        """
+        f = self.filter
+        if not f.initialized:
+            return 'not initialised'
+        q = f.quaternion
+        turn = self._turn
+        if turn is not None:
+            c, s = turn
+            qw, qx, qy, qz = q
+            q = (c * qw - s * qz, c * qx - s * qy, c * qy + s * qx, c * qz + s * qw)
+        d = math.remainder(yaw_rad - rpy_of(q)[2], 2.0 * math.pi)
+        if f.flags.heading_absolute:
+            self.heading_offset_rad = math.remainder(self.heading_offset_rad + d, 2.0 * math.pi)
+            self.set_settings(self.settings)
+            return 'offset'
+        f.set_heading(rpy_of(f.quaternion)[2] + d)
+        return 'state'
+
+    def heading_state(self) -> float | None:
+        """The filter's yaw (rad, its world frame, yaw_offset not included) to keep across a restart, or None when
+        there is nothing to keep (not initialised, or the heading comes from the magnetometer)."""
+        f = self.filter
+        if not f.initialized or f.flags.heading_absolute:
+            return None
+        return rpy_of(f.quaternion)[2]
+
+    def restore_heading(self, yaw_rad: float) -> None:
+        """Start from the yaw :meth:`heading_state` gave (e.g. saved before a restart): applied when the filter
+        initialises, unless the magnetometer gives it a heading then."""
+        self._pending_heading = yaw_rad
+
+    def _apply_pending_heading(self) -> None:
+        yaw, self._pending_heading = self._pending_heading, None
+        f = self.filter
+        if yaw is not None and not f.flags.heading_absolute:
+            f.set_heading(yaw)
+
+    def on_motion_hint(self, t_s: float, still: bool, timeout_s: float = 0.5) -> None:
+        """An outside motion hint stamped ``t_s`` (s): ``still`` or moving. The filter learns the gyro bias at rest
+        only while the latest hint says still; a hint counts until ``timeout_s`` after its stamp (IMU stamps)."""
+        self.filter.still_hint = still
+        self._hint_until = t_s + timeout_s
+
+    def _expire_hint(self) -> None:
+        self.filter.still_hint = None
+        self._hint_until = math.inf

@@ -31,7 +31,8 @@ from typing import Any
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import TransformStamped, Vector3Stamped
+from geometry_msgs.msg import PoseWithCovarianceStamped, TransformStamped, TwistStamped, Vector3Stamped
+from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import (
     FloatingPointRange,
     IntegerRange,
@@ -42,6 +43,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
+from rclpy.lifecycle import LifecycleNodeMixin, LifecycleState, TransitionCallbackReturn
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
@@ -181,11 +183,39 @@ class CcfNode(Node):
 
     def __init__(self, profile: NodeProfile | str = 'ccf_node', *, node_name: str | None = None,
                  **kwargs: Any) -> None:
-        self.profile = PROFILES[profile] if isinstance(profile, str) else profile
+        self._init_profile(profile)
         super().__init__(node_name or self.profile.node_name, **kwargs)
+        self._configure_ccf()
+        self._open_ccf()
+
+    def _init_profile(self, profile: NodeProfile | str) -> None:
+        """Before the rclpy node exists: the profile, and no entities yet."""
+        self.profile = PROFILES[profile] if isinstance(profile, str) else profile
+        self._callbacks_added = False
+        #: publishers, subscriptions, service and timer exist (between _open_ccf and _close_ccf)
+        self.is_open = False
+        self.pub_rpy: Publisher | None = None
+        self.pub_rpy_raw: Publisher | None = None
+        self.pub_steady: Publisher | None = None
+        self.pub_tf: Publisher | None = None
+        self.sub_mag: Subscription | None = None
+        self.sub_hint: Subscription | None = None
+        #: the motion hint topic subscribed (resolved name), or waited for on the graph ('' none)
+        self._hint_topic = ''
+        #: set_pose messages applied
+        self.n_set_pose = 0
+
+    def _configure_ccf(self) -> None:
+        """Declare the parameters (once), validate them and build the engine.
+
+        Raises:
+            ValueError: an invalid parameter value (rclpy's ParameterException for a wrong type).
+        """
         self._defaults = defaults_for(self.profile)
         read_only = self.profile.read_only
         for name, default in self._defaults.items():
+            if self.has_parameter(name):  # a lifecycle node configured again after a cleanup
+                continue
             # Tuples (noise vectors) are declared as arrays.
             value = list(default) if isinstance(default, tuple) else default
             self.declare_parameter(name, value, _descriptor(name, default, name in read_only))
@@ -205,9 +235,15 @@ class CcfNode(Node):
         self._noticed: set[str] = set()
         self._last_bias_t = -math.inf
         self._last_warn = 0.0
-        self.add_on_set_parameters_callback(self._validate_parameters)
-        self.add_post_set_parameters_callback(self._apply_parameters)
+        if not self._callbacks_added:
+            self._callbacks_added = True
+            self.add_on_set_parameters_callback(self._validate_parameters)
+            self.add_post_set_parameters_callback(self._apply_parameters)
 
+    def _open_ccf(self) -> None:
+        """Create the publishers, subscriptions, reset service and timer: messages flow from here on."""
+        self.is_open = True
+        read_only = self.profile.read_only
         # Every entity is in the executor's wait set, rebuilt in Python for every message: the node has few. The
         # secondary publishers go without rclpy's default QoS-event handlers (two waitables each, which only log),
         # debug and TF publishers exist only when asked for, and one timer serves diagnostics and held samples.
@@ -215,10 +251,6 @@ class CcfNode(Node):
         self.pub_imu = self.create_publisher(Imu, self.profile.out_topic, OUTPUT_DEPTH)
         self.pub_bias = self.create_publisher(Vector3Stamped, 'imu/gyro_bias', OUTPUT_DEPTH,
                                               event_callbacks=self._quiet)
-        self.pub_rpy: Publisher | None = None
-        self.pub_rpy_raw: Publisher | None = None
-        self.pub_steady: Publisher | None = None
-        self.pub_tf: Publisher | None = None
         self._tf_type: type[Any] | None = None
         self._tf_warned = False
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10, event_callbacks=self._quiet)
@@ -226,7 +258,6 @@ class CcfNode(Node):
         # The executor serves ready subscriptions in creation order: magnetometer first, so that a magnetometer
         # sample and the IMU sample with the same stamp pair as they do in `ccf replay` (bag order). A profile whose
         # use_mag is read-only and false does not subscribe it (as imu_tools).
-        self.sub_mag: Subscription | None = None
         if self._settings['use_mag'] or 'use_mag' not in read_only:
             self.sub_mag = self.create_subscription(MagneticField, self.profile.mag_topic, self._on_mag_raw,
                                                     self._input_qos(), raw=True,
@@ -236,6 +267,8 @@ class CcfNode(Node):
         self._take_mag = self._taker(self.sub_mag) if self.sub_mag is not None else _nothing
         self._take_imu = self._taker(self.sub_imu)
         self.srv_reset = self.create_service(Trigger, '~/reset', self._on_reset)
+        # robot_localization's idiom: a pose on set_pose sets the heading (its orientation's yaw).
+        self.sub_set_pose = self.create_subscription(PoseWithCovarianceStamped, 'set_pose', self._on_set_pose, 10)
         self._last_diag = time.monotonic()
         # A steady clock: held samples and diagnostics keep their pace with use_sim_time too.
         self.timer = self.create_timer(self.DIAGNOSTICS_PERIOD_S, self._on_timer,
@@ -256,6 +289,76 @@ class CcfNode(Node):
             f'formulation={self._settings["formulation"]} world_frame={self._settings["world_frame"]} '
             f'use_mag={self._settings["use_mag"]}, listening on {inputs}'
         )
+
+    def _close_ccf(self) -> None:
+        """Answer the held samples, then destroy what :meth:`_open_ccf` made (and the debug/TF publishers)."""
+        if not self.is_open:
+            return
+        self._answer_all(self.sync.flush(time.monotonic()))
+        self.is_open = False
+        for sub in (self.sub_mag, self.sub_imu, self.sub_set_pose, self.sub_hint):
+            if sub is not None:
+                self.destroy_subscription(sub)
+        self.sub_mag = self.sub_hint = None
+        self._hint_topic = ''
+        for pub in (self.pub_imu, self.pub_bias, self.pub_diag, self.pub_rpy, self.pub_rpy_raw, self.pub_steady,
+                    self.pub_tf):
+            if pub is not None:
+                self.destroy_publisher(pub)
+        self.pub_rpy = self.pub_rpy_raw = self.pub_steady = self.pub_tf = None
+        self.destroy_service(self.srv_reset)
+        self.destroy_timer(self.timer)
+
+    def _resolved_hint_topic(self) -> str:
+        topic = str(self._settings['motion_hint_topic'])
+        return self.resolve_topic_name(topic) if topic else ''
+
+    def _subscribe_motion_hint(self) -> None:
+        """Subscribe motion_hint_topic with the type it has on the graph (nav_msgs/Odometry or
+        geometry_msgs/TwistStamped); until a publisher shows it, the timer tries again."""
+        if self.sub_hint is not None:
+            self.destroy_subscription(self.sub_hint)
+            self.sub_hint = None
+            self.engine.filter.still_hint = None
+        topic = self._hint_topic = self._resolved_hint_topic()
+        if not topic:
+            return
+        types = dict(self.get_topic_names_and_types()).get(topic, [])
+        # A best-effort reader matches reliable and best-effort writers alike.
+        qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
+        if 'nav_msgs/msg/Odometry' in types:
+            self.sub_hint = self.create_subscription(Odometry, topic, self._on_odometry, qos)
+        elif 'geometry_msgs/msg/TwistStamped' in types:
+            self.sub_hint = self.create_subscription(TwistStamped, topic, self._on_twist, qos)
+        elif types:
+            self._warn_throttled(f'motion_hint_topic {topic} has type {types}: nav_msgs/msg/Odometry or '
+                                 'geometry_msgs/msg/TwistStamped expected; no motion hint')
+            return
+        if self.sub_hint is not None:
+            self.get_logger().info(f'motion hint from {topic} ({types[0]})')
+
+    def _on_odometry(self, msg: Odometry) -> None:
+        self._motion_hint(msg.header, msg.twist.twist)
+
+    def _on_twist(self, msg: TwistStamped) -> None:
+        self._motion_hint(msg.header, msg.twist)
+
+    def _motion_hint(self, header: Any, twist: Any) -> None:
+        """Still: speed below motion_hint_linear_m_s and turn rate below motion_hint_angular_rad_s."""
+        v, w = twist.linear, twist.angular
+        still = (v.x * v.x + v.y * v.y + v.z * v.z < self._hint_lin2
+                 and w.x * w.x + w.y * w.y + w.z * w.z < self._hint_ang2)
+        self.engine.on_motion_hint(stamp_s(header), still, self._hint_timeout)
+
+    def _on_set_pose(self, msg: PoseWithCovarianceStamped) -> None:
+        """Set the output's heading to the yaw of the pose's orientation (roll, pitch and position ignored)."""
+        o = msg.pose.pose.orientation
+        yaw = rpy_of(from_xyzw(o.x, o.y, o.z, o.w))[2]
+        # Samples held for their magnetometer sample came before the pose: answered with the old heading.
+        self._answer_all(self.sync.flush(time.monotonic()))
+        how = self.engine.set_heading(yaw)
+        self.n_set_pose += 1
+        self.get_logger().info(f'set_pose: heading {yaw:.4f} rad ({how})')
 
     def _input_qos(self) -> QoSProfile:
         """A new input profile per subscription (rclpy writes the overrides into the profile it is given)."""
@@ -284,6 +387,14 @@ class CcfNode(Node):
         self._world_frame = str(st['world_frame'])
         debug = bool(st['publish_debug_topics'])
         prof = self.profile
+        self._hint_lin2 = float(st['motion_hint_linear_m_s']) ** 2
+        self._hint_ang2 = float(st['motion_hint_angular_rad_s']) ** 2
+        self._hint_timeout = float(st['motion_hint_timeout_s'])
+        if not self.is_open:  # a lifecycle node not active: the publishers are made on activation
+            self._debug = self._steady = self._tf = False
+            return
+        if self._hint_topic != self._resolved_hint_topic():
+            self._subscribe_motion_hint()
         if debug and self.pub_rpy is None and prof.rpy_filtered_topic:
             self.pub_rpy = self._quiet_publisher(Vector3Stamped, prof.rpy_filtered_topic)
         if debug and self.pub_rpy_raw is None and prof.rpy_raw_topic:
@@ -471,6 +582,8 @@ class CcfNode(Node):
         diagnostics once a second, and set the next wake-up: the earlier of the two."""
         now = time.monotonic()
         self._answer_all(self.sync.expire(now))
+        if self._hint_topic and self.sub_hint is None:
+            self._subscribe_motion_hint()
         if now - self._last_diag >= self.DIAGNOSTICS_PERIOD_S - 0.002:
             self._last_diag = now
             self._publish_diagnostics()
@@ -618,9 +731,10 @@ class CcfNode(Node):
         return resp
 
     # --- diagnostics --------------------------------------------------------------------------------------------
-    def diagnostics(self) -> Diagnostics:
-        """Level, message and values of the node's status (rules in :func:`ccf_ros.node_support.diagnostics`)."""
-        return diagnostics(time.monotonic(), self.stats, self.engine, self.sync.stats(),
+    def diagnostics(self, now: float | None = None) -> Diagnostics:
+        """Level, message and values of the node's status (rules in :func:`ccf_ros.node_support.diagnostics`) at
+        ``now`` (s, time.monotonic; None: now)."""
+        return diagnostics(time.monotonic() if now is None else now, self.stats, self.engine, self.sync.stats(),
                            use_mag=bool(self._settings['use_mag']),
                            mag_timeout_s=float(self._settings['mag_timeout_s']))
 
@@ -642,6 +756,68 @@ class CcfNode(Node):
         self.pub_diag.publish(arr)
 
 
+class CcfLifecycleNode(LifecycleNodeMixin, CcfNode):
+    """``ccf_lifecycle_node``: :class:`CcfNode` as a managed (lifecycle) node, for bring-ups that activate nodes in
+    order (Nav2's lifecycle manager, ``ros2 lifecycle set``).
+
+    configure: parameters declared (once) and validated, the engine built (an invalid value: the transition fails
+    with the reason logged, the node stays unconfigured); activate: publishers, subscriptions, ``~/reset`` and the
+    timer made, messages flow; deactivate: held samples answered, all of them destroyed (parameters stay, the
+    estimate too); cleanup: the filter state dropped (the next configure starts a fresh estimate); shutdown, from
+    every state: whatever exists is destroyed.
+    """
+
+    def __init__(self, profile: NodeProfile | str = 'ccf_node', *, node_name: str | None = None,
+                 **kwargs: Any) -> None:
+        self._init_profile(profile)
+        self._configured = False
+        Node.__init__(self, node_name or self.profile.node_name, **kwargs)
+        LifecycleNodeMixin.__init__(self, enable_communication_interface=True)
+
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        try:
+            self._configure_ccf()
+        except (ValueError, ParameterException) as err:
+            self.get_logger().error(f'configure failed: {err}')
+            return TransitionCallbackReturn.FAILURE
+        self._configured = True
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._open_ccf()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._close_ccf()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.engine.reset()
+        self.sync.reset()
+        self.stats = InputStats()
+        self._configured = False
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._close_ccf()
+        self._configured = False
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._close_ccf()
+        self._configured = False
+        return TransitionCallbackReturn.SUCCESS
+
+    def _validate_parameters(self, params: list[Parameter]) -> SetParametersResult:
+        if not self._configured:  # checked on configure
+            return SetParametersResult(successful=True)
+        return super()._validate_parameters(params)
+
+    def _apply_parameters(self, params: list[Parameter]) -> None:
+        if self._configured:
+            super()._apply_parameters(params)
+
+
 def _nothing() -> None:
     return None
 
@@ -654,12 +830,13 @@ def _is_startup_error(err: BaseException) -> bool:
     return isinstance(err, RuntimeError) and str(err).startswith('Unexpected QoS override')
 
 
-def main(args: list[str] | None = None, profile: str = 'ccf_node') -> None:
-    """Entry point of ``ccf_node`` / ``ros2 run ccf_ros ccf_node`` (and, with ``profile``, of the drop-ins)."""
-    node = None
+def main(args: list[str] | None = None, profile: str = 'ccf_node', lifecycle: bool = False) -> None:
+    """Entry point of ``ccf_node`` / ``ros2 run ccf_ros ccf_node`` (and, with ``profile``, of the drop-ins; with
+    ``lifecycle``, of ``ccf_lifecycle_node``)."""
+    node: CcfNode | None = None
     try:
         rclpy.init(args=args)
-        node = CcfNode(profile)
+        node = CcfLifecycleNode(profile) if lifecycle else CcfNode(profile)
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
@@ -674,6 +851,11 @@ def main(args: list[str] | None = None, profile: str = 'ccf_node') -> None:
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+
+
+def lifecycle_main(args: list[str] | None = None) -> None:
+    """Entry point of ``ccf_lifecycle_node``: ccf_node as a managed node (starts unconfigured)."""
+    main(args, lifecycle=True)
 
 
 def imu_filter_madgwick_main(args: list[str] | None = None) -> None:

@@ -51,6 +51,10 @@ NODE_DEFAULTS: dict[str, Any] = {
     'fixed_frame': 'odom',
     'reverse_tf': False,
     'bias_save_interval_s': 60.0,
+    'motion_hint_topic': '',
+    'motion_hint_linear_m_s': 0.01,
+    'motion_hint_angular_rad_s': 0.01,
+    'motion_hint_timeout_s': 0.5,
 }
 
 #: imu_tools gains with no ccf meaning: accepted (a YAML written for imu_tools applies unchanged) and, when set to a
@@ -147,6 +151,12 @@ DESCRIPTIONS: dict[str, str] = {
     'fixed_frame': 'node: parent frame of the published transform',
     'reverse_tf': 'node: publish the inverse transform (IMU frame -> fixed_frame)',
     'bias_save_interval_s': 'node: write bias_file this often, s (and on shutdown); 0 = only on shutdown',
+    'motion_hint_topic': 'node: nav_msgs/Odometry or geometry_msgs/TwistStamped topic (type found on the graph) '
+                         'saying whether the robot moves: the gyro bias is learnt at rest only when it says still; '
+                         '"" = none',
+    'motion_hint_linear_m_s': 'node: the hint says still below this speed, m/s ...',
+    'motion_hint_angular_rad_s': 'node: ... and below this turn rate, rad/s',
+    'motion_hint_timeout_s': 'node: a hint older than this (s, by stamps) no longer counts (rest from the IMU alone)',
     **{name: f'imu_tools gain, accepted; ccf uses {role}' for name, (_, role) in IMU_TOOLS_GAINS.items()},
 }
 

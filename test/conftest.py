@@ -3,17 +3,81 @@
 from __future__ import annotations
 
 import copy
+import fcntl
 import os
 import random
+import tempfile
+import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
 from ccf_ros.offline.messages import stamp_s
 
-# Network rule: DDS traffic never leaves the loopback interface, and tests get a domain of their own.
+# Network rule: DDS traffic never leaves the loopback interface, and every test gets a domain of its own (see
+# ros_domain below). ROS_DOMAIN_ID from the environment is not used: the fixture sets it per test.
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-os.environ.setdefault('ROS_DOMAIN_ID', str(random.Random(os.getpid()).randint(100, 200)))
+#: The ROS domains tests may use, 'LO-HI' (inclusive; Fast DDS's ports allow 0-232). Several suites on one machine
+#: (CI jobs, developers' clones) share the range: a lock file per domain keeps each domain to one test at a time.
+DOMAINS_ENV = 'CCF_TEST_DOMAINS'
+DEFAULT_DOMAINS = '100-199'
+#: Where the per-domain lock files live (one machine-wide directory, as the domains are machine-wide).
+DOMAIN_LOCK_DIR = Path(tempfile.gettempdir()) / 'ccf_ros_test_domains'
+#: Longest wait for a free domain, s (every one held by other suites' tests).
+DOMAIN_WAIT_S = 120.0
+
+
+def domain_range(spec: str | None = None) -> range:
+    """The domains of ``spec`` ('LO-HI' or one number; default: env CCF_TEST_DOMAINS, else 100-199)."""
+    spec = spec if spec is not None else os.environ.get(DOMAINS_ENV, DEFAULT_DOMAINS)
+    lo_s, _, hi_s = spec.strip().partition('-')
+    try:
+        lo, hi = int(lo_s), int(hi_s or lo_s)
+    except ValueError:
+        raise pytest.UsageError(f'{DOMAINS_ENV} must be LO-HI (e.g. 150-199), got {spec!r}') from None
+    if not 0 <= lo <= hi <= 232:
+        raise pytest.UsageError(f'{DOMAINS_ENV} must lie within 0-232 with LO <= HI, got {spec!r}')
+    return range(lo, hi + 1)
+
+
+#: Index into the range of the next domain this process tries: round robin, so a domain just released (whose
+#: processes' DDS participants may still be leaving) is the last one this suite takes again.
+_next_domain = [random.Random(os.getpid()).randrange(1 << 16)]
+
+
+def acquire_domain(domains: range, wait_s: float = DOMAIN_WAIT_S) -> tuple[int, int]:
+    """Lock a free domain of ``domains``: (domain, fd of its lock file; closing it releases the domain)."""
+    DOMAIN_LOCK_DIR.mkdir(mode=0o777, exist_ok=True)
+    deadline = time.monotonic() + wait_s
+    while True:
+        for i in range(len(domains)):
+            k = (_next_domain[0] + i) % len(domains)
+            d = domains[k]
+            fd = os.open(DOMAIN_LOCK_DIR / f'{d}.lock', os.O_CREAT | os.O_RDWR, 0o666)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                os.close(fd)
+                continue
+            _next_domain[0] = k + 1
+            return d, fd
+        if time.monotonic() > deadline:
+            raise RuntimeError(f'no free ROS domain in {domains.start}-{domains.stop - 1} for {wait_s:.0f} s '
+                               f'(set {DOMAINS_ENV} to a wider or other range)')
+        time.sleep(0.2)  # every domain held by another suite's test: wait for one to finish
+
+
+@pytest.fixture(autouse=True)
+def ros_domain(monkeypatch: pytest.MonkeyPatch) -> Iterator[int]:
+    """A ROS domain of this test's own, in ROS_DOMAIN_ID for it and every process it starts: no other test of
+    this or any parallel suite (using the same lock directory) is on it while it runs."""
+    domain, fd = acquire_domain(domain_range())
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(domain))
+    try:
+        yield domain
+    finally:
+        os.close(fd)
 
 SHARED = Path(__file__).resolve().parents[2] / 'shared' / 'data' / 'broad'
 TRIAL = SHARED / '02_undisturbed_slow_rotation_B'
@@ -32,11 +96,11 @@ def need_shared(path: Path = SHARED) -> Path:
 
 
 @pytest.fixture
-def context():
-    """An rclpy context of its own on this run's domain (loopback only, see above), shut down afterwards."""
+def context(ros_domain: int):
+    """An rclpy context of its own on this test's domain (loopback only, see above), shut down afterwards."""
     rclpy = pytest.importorskip('rclpy')
     ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=int(os.environ['ROS_DOMAIN_ID']))
+    rclpy.init(context=ctx, domain_id=ros_domain)
     yield ctx
     rclpy.try_shutdown(context=ctx)
 

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import subprocess
 import sys
@@ -39,11 +40,25 @@ FILTER_BUG = '''
 
 #: Makes every IMU sample take 1 ms more (a 60 s bag replays in ~20 s): time to press Ctrl-C.
 SLOW_ENGINE = '''
+    import os
+    import signal
     import time
+    from pathlib import Path
     from ccf_ros.engine import ImuEngine
 
+    # Ctrl-C as in a terminal, even when the suite runs with SIGINT ignored (started in the background by a
+    # non-interactive shell: children inherit the ignore, and Python then installs no handler).
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     _on_imu = ImuEngine.on_imu
-    ImuEngine.on_imu = lambda self, *args: (time.sleep(0.001), _on_imu(self, *args))[1]
+    _mark = os.environ.get('CCF_TEST_MARK')
+
+    def _slow(self, *args):
+        time.sleep(0.001)
+        if _mark and self.n_in == 500:  # well into the replay: tell the test
+            Path(_mark).touch()
+        return _on_imu(self, *args)
+
+    ImuEngine.on_imu = _slow
 '''
 
 
@@ -57,9 +72,9 @@ def ccf_process(*args: object, patch: str = '') -> subprocess.CompletedProcess:
     return subprocess.run(_command(args, patch), capture_output=True, text=True, timeout=300)
 
 
-def ccf_started(*args: object, patch: str = '') -> subprocess.Popen:
+def ccf_started(*args: object, patch: str = '', env: dict[str, str] | None = None) -> subprocess.Popen:
     """``ccf ARGS`` started in a new Python process (stderr piped), after running ``patch``."""
-    return subprocess.Popen(_command(args, patch), stderr=subprocess.PIPE, text=True)
+    return subprocess.Popen(_command(args, patch), stderr=subprocess.PIPE, text=True, env=env)
 
 
 def one_line(stderr: str) -> str:
@@ -236,12 +251,13 @@ def test_debug_reraises_input_errors_with_their_traceback(sim_bag, tmp_path):
 
 def test_ctrl_c_exits_130_and_leaves_no_half_bag(sim_bag, tmp_path):
     out = tmp_path / 'out'
-    p = ccf_started('replay', sim_bag, '-o', out, patch=SLOW_ENGINE)
+    mark = tmp_path.parent / f'{tmp_path.name}.mark'
+    p = ccf_started('replay', sim_bag, '-o', out, patch=SLOW_ENGINE, env={**os.environ, 'CCF_TEST_MARK': str(mark)})
     staging = tmp_path / '.out.partial'
-    deadline = time.time() + 60
-    while not staging.exists() and time.time() < deadline and p.poll() is None:
-        time.sleep(0.05)
-    time.sleep(1.0)  # well into the replay
+    deadline = time.time() + 120
+    while not mark.exists() and time.time() < deadline and p.poll() is None:
+        time.sleep(0.05)  # polling a file the replay writes at its 500th sample (of 17160, 1 ms each at least)
+    assert mark.exists() and staging.exists(), 'replay did not get going'
     assert p.poll() is None, 'replay ended before Ctrl-C'
     p.send_signal(signal.SIGINT)
     _, err = p.communicate(timeout=60)

@@ -63,8 +63,38 @@ class Harness:
             'node did not subscribe'
         if self.node is None:
             # Another process: its readers match our writers some milliseconds after ours match theirs, and a
-            # volatile reader drops what comes before (a lost first magnetometer sample changes the heading).
-            self.spin_until(lambda: False, 0.5)
+            # volatile reader drops what comes before (a lost first magnetometer sample changes the heading). Wait
+            # until it has read from each of our writers: its diagnostics count our probes.
+            self._probe(self.pub_imu, timeout)
+            if self.pub_mag.get_subscription_count():
+                self._probe(self.pub_mag, timeout)
+
+    #: Not CDR (an unknown encapsulation): a node drops such a message and counts it, nothing else changes.
+    PROBE = b'\x00\x7f\x00\x00'
+
+    def _unreadable(self):
+        """The latest 'unreadable messages dropped' on /diagnostics (None: no diagnostics yet)."""
+        for d in reversed(self.diag):
+            for st in d.status:
+                for kv in st.values:
+                    if kv.key == 'unreadable messages dropped':
+                        return int(kv.value)
+        return None
+
+    def _probe(self, pub, timeout):
+        """Publish probes on ``pub`` until the remote node's diagnostics count one more than before."""
+        # The count before: from a diagnostics message published after every earlier probe was taken (the second
+        # one from now: the next may be on its way already).
+        n = len(self.diag)
+        assert self.spin_until(lambda: len(self.diag) >= n + 2 and self._unreadable() is not None, timeout), \
+            'no diagnostics from the node'
+        base = self._unreadable()
+        deadline = time.time() + timeout
+        while time.time() < deadline:
+            pub.publish(self.PROBE)
+            if self.spin_until(lambda: self._unreadable() > base, 0.1):
+                return
+        raise AssertionError(f'the node did not read {pub.topic_name}')
 
     def publish(self, topic, msg):
         (self.pub_mag if topic == MAG else self.pub_imu).publish(msg)
@@ -373,7 +403,8 @@ def test_reset_service_and_diagnostics(context, inputs):
         h.feed(inputs[:1000], 500, n_bias=n_bias)
         h.spin_until(lambda: False, 0.2)  # nothing more comes
         assert len(h.out) == 500 and len(h.bias) == n_bias
-        d = node.diagnostics()
+        # As at the last input (the wall clock since could be over a second on a loaded machine: 'no IMU input').
+        d = node.diagnostics(now=node.stats.last_imu)
         v = d.values
         assert d.level == OK and d.message == 'ok', d.message
         assert v['samples answered'] == '500' and v['samples in'] == '500' and v['magnetometer samples in'] == '500'
@@ -386,14 +417,21 @@ def test_reset_service_and_diagnostics(context, inputs):
         assert h.spin_until(lambda: h.diag, 3.0)
         status = h.diag[-1].status[0]
         assert status.name.startswith('ccf_node')
-        # Published up to a second after the input stopped: OK, or WARN for the magnetometer's age by then.
-        assert (status.level, status.message) == (b'\x00', 'ok') or (
-            status.level == b'\x01' and status.message.startswith('no magnetometer for'))
+        # Published up to a second after the input stopped: OK, or WARN for the magnetometer's age by then (or, on a
+        # loaded machine where that second passed before it went out, ERROR for the input's age).
+        assert (status.level, status.message) in ((b'\x00', 'ok'), (b'\x02', 'no IMU input for more than 1 s')) or (
+            status.level == b'\x01' and status.message.startswith('no magnetometer for')), status
         assert {kv.key for kv in status.values} == set(v)
         cli = h.io.create_client(Trigger, '/ccf_node/reset')
         assert cli.wait_for_service(timeout_sec=5)
-        fut = cli.call_async(Trigger.Request())
-        h.ex.spin_until_future_complete(fut, timeout_sec=5)
+        for _ in range(5):
+            # A request sent just after wait_for_service can be lost while the service's reply side is still
+            # matching (seen on a loaded machine): sent again (resetting twice is harmless here).
+            fut = cli.call_async(Trigger.Request())
+            h.ex.spin_until_future_complete(fut, timeout_sec=3)
+            if fut.done():
+                break
+            cli.remove_pending_request(fut)
         assert fut.result().success and not node.engine.filter.initialized and not node.sync.lockstep
         assert node.diagnostics().level == 2  # ERROR: not initialised
     finally:
@@ -408,15 +446,17 @@ def _node_command():
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
 def test_installed_node_in_a_namespace_answers_and_exits_cleanly(context, inputs, sig):
     ns = f'robot{sig.value}'
+    # 6-D: with the magnetometer, an IMU sample whose magnetometer sample is late by more than HOLD_S (another
+    # process on a loaded machine) is answered without it, and the answers would differ from replay's by timing.
     proc = subprocess.Popen(_node_command() + ['--ros-args', '-r', f'__ns:=/{ns}', '-p', 'qos_reliability:=reliable',
-                                               '-p', 'qos_depth:=5000'],
+                                               '-p', 'qos_depth:=5000', '-p', 'use_mag:=false'],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     h = Harness(context, None, ns=ns)
     try:
         h.wait_connected(timeout=20)
         h.feed(inputs[:1200], 600)
         assert len(h.out) == 600
-        np.testing.assert_array_equal(_xyzw(h.out), _ref_xyzw(_replay_reference(inputs[:1200])))
+        np.testing.assert_array_equal(_xyzw(h.out), _ref_xyzw(_replay_reference(inputs[:1200], {'use_mag': False})))
     finally:
         proc.send_signal(sig)
         try:
@@ -525,8 +565,20 @@ def test_live_node_matches_replay_on_fast_rotation(tmp_path):
     t_ref, q_ref = _engine_over_bag(bag)
     assert res.exit_code == 0 and len(res.t_s) == res.n_imu_sent == len(t_ref) > 4000
     np.testing.assert_array_equal(res.t_s, t_ref)
-    diff = np.nonzero(np.any(res.quat != q_ref, axis=1))[0]  # bit for bit: every sample paired as in bag order
-    assert len(diff) == 0, f'first differences at samples {diff[:5]} of {len(q_ref)}; diagnostics {res.diagnostics}'
+    if not np.array_equal(res.quat, q_ref):  # bit for bit: every sample paired as in bag order
+        _differ_only_by_hold_timeouts(res, q_ref)
+
+
+def _differ_only_by_hold_timeouts(res, q_ref):
+    """Live answers that are not replay's bit for bit: allowed only for timing. On a loaded machine a magnetometer
+    sample can come more than HOLD_S after its IMU sample, which is then answered without it (by design: the node
+    does not wait longer). Counted as hold timeouts; the answers then differ by skipped heading corrections (less
+    than 1 degree), not by a mis-pairing."""
+    d = res.diagnostics
+    diff = np.nonzero(np.any(res.quat != q_ref, axis=1))[0]
+    assert int(d['hold timeouts']) > 0, f'first differences at samples {diff[:5]} of {len(q_ref)}; diagnostics {d}'
+    angle = np.degrees(2 * np.arccos(np.clip(np.abs(np.sum(res.quat * q_ref, axis=1)), 0.0, 1.0)))
+    assert angle.max() < 1.0, (d['hold timeouts'], angle.max())
 
 
 def test_live_node_survives_faults_and_answers_every_sample(faulty_sim):
@@ -547,10 +599,9 @@ def test_live_node_survives_faults_and_answers_every_sample(faulty_sim):
     # first sample can overtake it over DDS (nothing waits while it is silent), and is then answered without it.
     d = res.diagnostics
     if not np.array_equal(res.quat, q_ref):
-        diff = np.nonzero(np.any(res.quat != q_ref, axis=1))[0]
         _, q_alt = _engine_over_bag(path, imu_first_after_silence=True)
-        assert np.array_equal(res.quat, q_alt), \
-            f'first differences at samples {diff[:5]} of {len(q_ref)}; diagnostics {d}'
+        if not np.array_equal(res.quat, q_alt):
+            _differ_only_by_hold_timeouts(res, q_ref)
     assert d['samples answered'] == str(res.n_imu_sent)
     assert int(d['skipped: skipped_bad_gyro']) == injected['bad_gyro']
     assert int(d['skipped: skipped_stamp']) == injected['bad_stamp']

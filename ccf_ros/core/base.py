@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from enum import IntEnum
 from typing import NamedTuple
 
-from .quaternion import WORLD_FRAMES, quat_mul_scalar
+from .quaternion import WORLD_FRAMES, quat_mul_scalar, rpy_of
 
 
 class Status(IntEnum):
@@ -176,10 +176,14 @@ class OrientationFilter(ABC):
         'n_no_mag',
         'n_nonfinite_resets',
         'params',
+        'still_hint',
     )
     params: CommonParams
 
     def __init__(self, params: CommonParams) -> None:
+        #: an outside motion hint (odometry, cmd_vel): True still, False moving, None none; filters that learn
+        #: the gyro bias at rest learn it only when this is not False. Kept by reset() (it is an input).
+        self.still_hint: bool | None = None
         self._apply_params(params)
         self.reset()
 
@@ -370,3 +374,18 @@ class OrientationFilter(ABC):
     def magnetometer_changed(self) -> None:  # noqa: B027 (a hook with a default, not an abstract method)
         """The magnetometer's calibration changed under the filter (an online hard-iron offset was applied or moved):
         a filter that learns a reference of the field (norm, dip) can take the new one. No-op by default."""
+
+    def set_heading(self, yaw_rad: float) -> None:
+        """Turn the estimate about the world's vertical so that its yaw (Z-Y-X, in ``params.world_frame``) is
+        ``yaw_rad`` (rad); roll, pitch, bias and the rest are kept. Nothing before initialisation."""
+        if not self.initialized:
+            return
+        d = math.remainder(yaw_rad - rpy_of(self.quaternion)[2], 2.0 * math.pi)
+        # The internal frame is ENU (z up); NED's yaw is about z down.
+        self._rotate_about_up(-d if self.params.world_frame == 'ned' else d)
+
+    def _rotate_about_up(self, angle_rad: float) -> None:
+        """Rotate the state about the internal ENU frame's z by ``angle_rad``; filters keeping more world-frame
+        state (or their own orientation form) extend this."""
+        c, s = math.cos(0.5 * angle_rad), math.sin(0.5 * angle_rad)
+        self._q = quat_mul_scalar((c, 0.0, 0.0, s), self._q)

@@ -13,7 +13,7 @@ import math
 from dataclasses import dataclass
 
 from .base import CommonParams, OrientationFilter, check_range
-from .quaternion import WORLD_FRAMES, quat_from_acc_mag, quat_mul
+from .quaternion import WORLD_FRAMES, quat_from_acc_mag, quat_mul, quat_mul_scalar
 
 _S = math.sqrt(0.5)
 # q_nwu = Q_NWU_FROM_ENU ⊗ q_enu (its inverse, (cos 45°, 0, 0, sin 45°), is applied in _publish).
@@ -84,6 +84,13 @@ class _NwuFilter(OrientationFilter):
     def orientation_variance(self) -> tuple[float, float, float]:
         """A fixed figure (these filters keep no uncertainty): 2° inclination, 5° heading, as rad²."""
         return ((2.0 * math.pi / 180) ** 2,) * 2 + ((5.0 * math.pi / 180) ** 2,)
+
+
+    def _rotate_about_up(self, angle_rad: float) -> None:
+        """set_heading's turn on the NWU state (NWU's z is ENU's: the same turn)."""
+        c, s = math.cos(0.5 * angle_rad), math.sin(0.5 * angle_rad)
+        self._qn = quat_mul_scalar((c, 0.0, 0.0, s), self._qn)
+        self._nwu_to_enu()
 
 
 class Madgwick(_NwuFilter):

@@ -819,7 +819,8 @@ class QuaternionCcf(OrientationFilter):
             dax = ax - alx
             day = ay - aly
             daz = az - alz
-            if dax * dax + day * day + daz * daz < c.rest_acc2:
+            # A motion hint saying "moving" (odometry) rules rest out: a slow steady turn is not learnt as bias.
+            if dax * dax + day * day + daz * daz < c.rest_acc2 and self.still_hint is not False:
                 k = c.k_rest
                 self._acc_lp = (alx + k * dax, aly + k * day, alz + k * daz)
                 if self._rest_s:
@@ -1119,10 +1120,14 @@ class QuaternionCcf(OrientationFilter):
         what the estimate's uncertainty and a bias's instability between rests (:data:`REST_BIAS_TOL_RAD_S`)
         explain is a slow turn (a tracked robot turning in place), unless it lasts :data:`REST_RELEARN_S`.
         """
+        if self.still_hint:
+            return True  # odometry says the robot stands still: a steady rate is the bias, whatever it was
+        e2 = ex * ex + ey * ey + ez * ez
         if not self._bias_rested:
-            # The first rest: once the estimate has converged on it (eight of its time constants), it was seen.
+            # The first rest: once the estimate has converged on it (within the tolerance, two time constants in),
+            # it was seen.
             p = self.params
-            if self._rest_s >= p.rest_min_s + 8.0 * p.rest_tau_s:
+            if e2 < _REST_TOL2 and self._rest_s >= p.rest_min_s + 2.0 * p.rest_tau_s:
                 self._bias_rested = True
                 bx, by, bz = self._x[:3]
                 if bx * bx + by * by + bz * bz > 9.0 * p.bias_sigma_init_rad_s**2:
@@ -1132,10 +1137,8 @@ class QuaternionCcf(OrientationFilter):
                     self._n_init = 1
                     self._forget_mag_reference()
             return True
-        if self._rest_s >= REST_RELEARN_S:
-            return True
         p00, _, _, p11, _, p22 = self._p_bias
-        return ex * ex + ey * ey + ez * ez < _REST_TOL2 + 9.0 * (p00 + p11 + p22)
+        return e2 < _REST_TOL2 + 9.0 * (p00 + p11 + p22) or self._rest_s >= REST_RELEARN_S
 
     def _mag_consistency(self, we: float, wn: float, wu: float, ce: float, cn: float, cu: float) -> None:
         """Whether the field stays put in the world, once per block of ``t`` s: its samples summed in world
@@ -1333,3 +1336,11 @@ class QuaternionCcf(OrientationFilter):
             # tau_mag_s: snapping it to the first applied offsets, which are refined for a while, measured worse.)
             self._mag_band = None
             self._mag_consistent = True
+
+    def _rotate_about_up(self, angle_rad: float) -> None:
+        """:meth:`OrientationFilter.set_heading`'s turn: the LCF orientation and the NCF offset ``dn`` (world frame)
+        turn together, so the cascade sees no step (body-frame state: bias, filtered gravity, unchanged)."""
+        super()._rotate_about_up(angle_rad)
+        c, s = math.cos(angle_rad), math.sin(angle_rad)
+        x = self._x
+        self._x = (*x[:6], c * x[6] - s * x[7], s * x[6] + c * x[7], *x[8:])

@@ -234,6 +234,13 @@ class EulerCcf(OrientationFilter):
         return _FIXED_VARIANCE
 
 
+    def _rotate_about_up(self, angle_rad: float) -> None:
+        """set_heading's turn: the Euler state's yaw (and its own integrator's) turns with the orientation."""
+        super()._rotate_about_up(angle_rad)
+        for x in (self._x, self._xg):
+            x[2] = (x[2] + angle_rad + _PI) % _TWO_PI - _PI
+
+
 class EulerNcf(EulerCcf):
     """The paper's NCF (eqs 10-11): the Euler CCF without the LCF blend (alpha = 1). Per axis
     ``x' = rate + Kp e + Ki ∫e``, ``e = x_a - x``; transfer function from ``x_a``: (Kp s + Ki) / (s² + Kp s + Ki)."""
@@ -296,3 +303,8 @@ class Lcf(OrientationFilter):
     def orientation_variance(self) -> tuple[float, float, float]:
         """A fixed figure (no uncertainty estimate): 2° inclination, 5° heading, rad²."""
         return _FIXED_VARIANCE
+
+    def _rotate_about_up(self, angle_rad: float) -> None:
+        """set_heading's turn: the Euler state's yaw turns with the orientation."""
+        super()._rotate_about_up(angle_rad)
+        self._x[2] = (self._x[2] + angle_rad + _PI) % _TWO_PI - _PI

@@ -230,6 +230,13 @@ class _EulerKalman(OrientationFilter):
         return (max(p[0][0], _VARIANCE_FLOOR), max(p[1][1], _VARIANCE_FLOOR), max(p[2][2], _VARIANCE_FLOOR))
 
 
+    def _rotate_about_up(self, angle_rad: float) -> None:
+        """set_heading's turn: the Euler state's yaw turns with the orientation."""
+        super()._rotate_about_up(angle_rad)
+        for x in (self._x,):
+            x[2] = (x[2] + angle_rad + _PI) % _TWO_PI - _PI
+
+
 class Ekf(_EulerKalman):
     """Extended Kalman filter on (roll, pitch, yaw); see the module docstring. State: angles and their 3x3
     covariance (rad²)."""

@@ -59,6 +59,8 @@ class Recorder:
         self._prefix = diagnostics_of
         self.received: list[tuple[float, tuple[float, float, float, float], tuple[float, float, float]]] = []
         self.diagnostics: dict[str, str] = {}
+        #: diagnostics messages of the node received so far
+        self.n_diagnostics = 0
 
     def __enter__(self) -> Recorder:
         import rclpy
@@ -84,6 +86,7 @@ class Recorder:
                     self.diagnostics['level'] = str(int.from_bytes(level, 'little') if isinstance(level, bytes)
                                                     else int(level))
                     self.diagnostics['message'] = st.message
+                    self.n_diagnostics += 1
 
         self.node.create_subscription(Imu, 'imu/data', on_out,
                                       QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE))
@@ -111,15 +114,24 @@ class Recorder:
         rclpy.try_shutdown(context=self.ctx)
 
     def wait_answered(self, n: int, timeout_s: float, quiet_s: float = 2.0) -> None:
-        """Until ``n`` outputs arrived, or ``timeout_s`` passed, or nothing new for ``quiet_s``; then one more
-        diagnostics period."""
+        """Until ``n`` outputs arrived, or ``timeout_s`` passed, or the node's diagnostics say it answered ``n`` (or
+        more) samples and nothing new came for ``quiet_s`` (the rest was lost on the way); then until the next
+        diagnostics message (the values returned describe the end of the run).
+
+        Not "nothing new for ``quiet_s``" alone: on a loaded machine the node can stall longer than that."""
         deadline = time.time() + timeout_s
         last_n, quiet_since = -1, time.time()
-        while len(self.received) < n and time.time() < deadline and time.time() - quiet_since < quiet_s:
+        while len(self.received) < n and time.time() < deadline:
             if len(self.received) != last_n:
                 last_n, quiet_since = len(self.received), time.time()
+            elif time.time() - quiet_since > quiet_s and (
+                    int(self.diagnostics.get('samples answered', -1)) >= n or time.time() - quiet_since > 10 * quiet_s):
+                break  # answered and lost on the way, or (10 x quiet_s) samples the node could not answer
             time.sleep(0.05)
-        time.sleep(1.2)
+        n_diag = self.n_diagnostics
+        end = time.time() + 5.0
+        while self.n_diagnostics == n_diag and time.time() < end:
+            time.sleep(0.05)
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Stamps ``(N,)`` s, orientations ``(N, 4)``, linear accelerations ``(N, 3)`` received."""

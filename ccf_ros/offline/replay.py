@@ -106,6 +106,8 @@ class Topics(NamedTuple):
     out_bias: str = '/imu/gyro_bias'
     #: a missing ``mag`` topic is an error (True: the user named it) or a 6-D run with a warning (False)
     mag_required: bool = False
+    #: nav_msgs/Odometry or geometry_msgs/TwistStamped saying whether the robot moves (None: none)
+    motion_hint: str | None = None
 
 
 def replay(
@@ -124,6 +126,8 @@ def replay(
     copy_input: bool = False,
     overwrite: bool = False,
     progress: bool | None = None,
+    motion_hint_topic: str | None = None,
+    motion_hint: tuple[float, float, float] = (0.01, 0.01, 0.5),
 ) -> ReplaySummary:
     """Replay ``bag_in`` through ``engine`` into a new rosbag2 ``bag_out``.
 
@@ -133,6 +137,9 @@ def replay(
     (:func:`~ccf_ros.offline.bagio.detect_topics`; a named ``mag_topic`` is then required; ``no_mag``: none).
     A bag without ``mag_topic`` replays 6-D (heading relative to the start) with a warning in the summary, unless
     ``mag_required``, which makes it an error (the user named a topic, and a typo must not pass silently).
+
+    ``motion_hint_topic`` (Odometry or TwistStamped) feeds :meth:`ImuEngine.on_motion_hint` in bag order, as the
+    node does: still below ``motion_hint`` = (speed m/s, turn rate rad/s), counting for its timeout (s).
 
     Raises:
         BagError: unreadable input, missing or empty IMU topic, missing ``mag_topic`` with ``mag_required``, output
@@ -149,8 +156,8 @@ def replay(
             imu_topic, mag_topic, mag_required = detect_topics(reader, bag_in, imu_topic, mag_topic, no_mag)
         if imu_topic is None:
             raise BagError('replay: no IMU topic (pass imu_topic or detect=True)')
-        topics = Topics(imu_topic, mag_topic, out_imu_topic, out_bias_topic, mag_required)
-        replayer = _Replayer(reader, writer, engine, bag_in, topics, copy_input)
+        topics = Topics(imu_topic, mag_topic, out_imu_topic, out_bias_topic, mag_required, motion_hint_topic)
+        replayer = _Replayer(reader, writer, engine, bag_in, topics, copy_input, motion_hint)
         n_out = replayer.run(progress)
     warnings = engine.warnings + replayer.warnings
     if engine.settings.bias_file:
@@ -314,16 +321,38 @@ class _MessagePath:
         return self._serialize(msg, IMU), self._serialize(self._bias, VECTOR3_STAMPED)
 
 
+class _HintPath:
+    """Motion-hint messages (nav_msgs/Odometry or geometry_msgs/TwistStamped, deserialized: tens of Hz) to
+    :meth:`ImuEngine.on_motion_hint`, with the node's rule: still below both thresholds."""
+
+    def __init__(self, engine: ImuEngine, reader: AnyReader, bag: str | Path, hint: tuple[float, float, float]) -> None:
+        self._engine = engine
+        self._reader = reader
+        self._bag = bag
+        lin, ang, self._timeout = hint
+        self._lin2, self._ang2 = lin * lin, ang * ang
+        self.msgtype = ''
+
+    def on_hint(self, raw: bytes) -> None:
+        msg = deserialize(self._reader, raw, self.msgtype, self._bag)
+        tw = msg.twist.twist if self.msgtype == ODOMETRY else msg.twist
+        v, w = tw.linear, tw.angular
+        still = v.x * v.x + v.y * v.y + v.z * v.z < self._lin2 and w.x * w.x + w.y * w.y + w.z * w.z < self._ang2
+        self._engine.on_motion_hint(stamp_s(msg.header), still, self._timeout)
+
+
 class Kind(Enum):
     """What a message of a block is for."""
 
     IMU = 'imu'  # fed to the engine, answered on the output topics
     MAG = 'mag'  # fed to the engine
+    HINT = 'hint'  # fed to the engine (motion hint)
     COPY = 'copy'  # written to the output as it is (``copy_input``)
 
 
 # As plain module globals for the message loops: each Kind.IMU there would cost an enum attribute lookup.
-_IMU, _MAG, _COPY = Kind.IMU, Kind.MAG, Kind.COPY
+_IMU, _MAG, _HINT, _COPY = Kind.IMU, Kind.MAG, Kind.HINT, Kind.COPY
+ODOMETRY, TWIST_STAMPED = 'nav_msgs/msg/Odometry', 'geometry_msgs/msg/TwistStamped'
 
 #: One message of a block: its kind; its :class:`_Path` (None for a copy); its receive time, ns; its bytes as read
 #: (for a copy: the output connection and the CDR bytes).
@@ -339,7 +368,7 @@ class _Replayer:
 
     def __init__(
         self, reader: AnyReader, writer: BagWriter, engine: ImuEngine, bag: str | Path, topics: Topics,
-        copy_input: bool,
+        copy_input: bool, motion_hint: tuple[float, float, float] = (0.01, 0.01, 0.5),
     ) -> None:
         imu_conns = connections_for(reader, topics.imu, msgtype=IMU)
         mag_conns = (
@@ -355,9 +384,17 @@ class _Replayer:
                                  'another topic, --no-mag silences this)')
         self._reader = reader
         self._bag = bag
-        self._inputs = list(reader.connections) if copy_input else in_bag_order(reader, imu_conns + mag_conns)
+        self._hint = _HintPath(engine, reader, bag, motion_hint)
+        hint_conns = connections_for(reader, topics.motion_hint) if topics.motion_hint else []
+        for c in hint_conns:
+            if c.msgtype not in (ODOMETRY, TWIST_STAMPED):
+                raise BagError(f'topic {c.topic} is {c.msgtype}, expected {ODOMETRY} or {TWIST_STAMPED}')
+            self._hint.msgtype = c.msgtype
+        self._inputs = (list(reader.connections) if copy_input
+                        else in_bag_order(reader, imu_conns + mag_conns + hint_conns))
         #: Input connection id -> what its messages are for (copies aside).
-        self._kinds = {c.id: _MAG for c in mag_conns} | {c.id: _IMU for c in imu_conns}
+        self._kinds = ({c.id: _MAG for c in mag_conns} | {c.id: _IMU for c in imu_conns}
+                       | {c.id: _HINT for c in hint_conns})
         self._n_imu = sum(c.msgcount for c in imu_conns)
         if not self._n_imu:
             raise BagError(f'{bag}: no messages on {topics.imu}')
@@ -400,8 +437,9 @@ class _Replayer:
                 cdr = ros1_to_cdr(self._store, raw, conn.msgtype, self._bag) if ros1 else raw
                 add((_COPY, None, t_rec, (copies[cid], cdr)))
             if cid in kinds:
+                kind = kinds[cid]
                 fast = not ros1 and raw[:2] == LITTLE_ENDIAN_CDR
-                add((kinds[cid], fast_path if fast else message_path, t_rec, raw))
+                add((kind, self._hint if kind is _HINT else fast_path if fast else message_path, t_rec, raw))
             if len(block) >= BLOCK_SIZE:
                 yield block
                 block = []
@@ -422,6 +460,8 @@ class _Replayer:
             else:
                 if kind is _MAG:
                     path.on_mag(raw)
+                elif kind is _HINT:
+                    path.on_hint(raw)
                 add(None)
         return answers, n_imu
 

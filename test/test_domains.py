@@ -1,0 +1,53 @@
+"""The suite's ROS-domain allocation (conftest.ros_domain): each test, in this or a parallel suite, gets a domain
+no other test holds while it runs."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+from conftest import acquire_domain, domain_range
+
+
+def test_domain_range_parses_and_rejects_bad_specs():
+    assert domain_range('220-223') == range(220, 224)
+    assert domain_range('150') == range(150, 151)
+    for bad in ('a-b', '230-240', '20-10'):
+        with pytest.raises(pytest.UsageError, match='CCF_TEST_DOMAINS'):
+            domain_range(bad)
+
+
+def test_this_test_holds_its_domain_and_others_are_handed_out_round_robin(ros_domain):
+    assert os.environ['ROS_DOMAIN_ID'] == str(ros_domain)
+    domains = range(ros_domain, ros_domain + 1)
+    with pytest.raises(RuntimeError, match='no free ROS domain'):
+        acquire_domain(domains, wait_s=0.0)  # held by this test
+    lo = 225 if ros_domain < 225 else 215
+    got = [acquire_domain(range(lo, lo + 3), wait_s=0.0) for _ in range(3)]
+    try:
+        assert sorted(d for d, _ in got) == [lo, lo + 1, lo + 2]  # each held once
+        with pytest.raises(RuntimeError):
+            acquire_domain(range(lo, lo + 3), wait_s=0.0)
+    finally:
+        for _, fd in got:
+            os.close(fd)
+
+
+def test_a_parallel_suite_does_not_get_a_domain_this_one_holds(ros_domain):
+    """Another process (a second suite on the machine) cannot take the domain this test holds."""
+    code = textwrap.dedent(f"""
+        import sys
+        sys.path.insert(0, {str(Path(__file__).parent)!r})
+        from conftest import acquire_domain
+        try:
+            acquire_domain(range({ros_domain}, {ros_domain + 1}), wait_s=0.5)
+        except RuntimeError as err:
+            print(err)
+    """)
+    r = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert 'no free ROS domain' in r.stdout

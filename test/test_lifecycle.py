@@ -1,0 +1,209 @@
+"""ccf_lifecycle_node: the lifecycle transitions driven over DDS through the standard lifecycle_msgs services
+(ChangeState, GetState) from a client node, in process and as the installed executable."""
+
+from __future__ import annotations
+
+import shutil
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+rclpy = pytest.importorskip('rclpy')
+
+from lifecycle_msgs.msg import State, Transition  # noqa: E402
+from lifecycle_msgs.srv import ChangeState, GetState  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from test_node import Harness, _ref_xyzw, _replay_reference, _xyzw  # noqa: E402
+
+from ccf_ros.node import CcfLifecycleNode  # noqa: E402
+
+UNCONFIGURED, INACTIVE, ACTIVE, FINALIZED = (State.PRIMARY_STATE_UNCONFIGURED, State.PRIMARY_STATE_INACTIVE,
+                                             State.PRIMARY_STATE_ACTIVE, State.PRIMARY_STATE_FINALIZED)
+SHUTDOWN_FROM = {UNCONFIGURED: Transition.TRANSITION_UNCONFIGURED_SHUTDOWN,
+                 INACTIVE: Transition.TRANSITION_INACTIVE_SHUTDOWN, ACTIVE: Transition.TRANSITION_ACTIVE_SHUTDOWN}
+
+#: The primary state each transition leads to.
+TARGET = {Transition.TRANSITION_CONFIGURE: INACTIVE, Transition.TRANSITION_ACTIVATE: ACTIVE,
+          Transition.TRANSITION_DEACTIVATE: INACTIVE, Transition.TRANSITION_CLEANUP: UNCONFIGURED,
+          **dict.fromkeys(SHUTDOWN_FROM.values(), FINALIZED)}
+
+
+@pytest.fixture(scope='module')
+def inputs(sim_bag):
+    from rosutil import read_inputs
+
+    return read_inputs(sim_bag, 3.0)
+
+
+class Manager:
+    """A lifecycle manager's view: the node's ChangeState/GetState services, called from the harness' client node."""
+
+    def __init__(self, h: Harness, name: str = '/ccf_node'):
+        self.h = h
+        self.change = h.io.create_client(ChangeState, f'{name}/change_state')
+        self.get = h.io.create_client(GetState, f'{name}/get_state')
+        assert self.change.wait_for_service(timeout_sec=20) and self.get.wait_for_service(timeout_sec=20)
+
+    def _call(self, client, request, timeout_s=3.0):
+        """The response, or None when none came within ``timeout_s``: a request sent just after wait_for_service
+        can be lost while the server's side of the service is still matching the client (DDS discovery is not
+        symmetric), most often on a loaded machine."""
+        fut = client.call_async(request)
+        self.h.ex.spin_until_future_complete(fut, timeout_sec=timeout_s)
+        if not fut.done():
+            client.remove_pending_request(fut)
+            return None
+        return fut.result()
+
+    def state(self) -> int:
+        for _ in range(10):  # GetState is idempotent: asked again until answered
+            r = self._call(self.get, GetState.Request())
+            if r is not None:
+                return r.current_state.id
+        raise AssertionError('GetState did not answer')
+
+    def transition(self, transition_id: int) -> bool:
+        """Request a transition; True if it succeeded. Unanswered: the state says whether it happened (the
+        response lost) or not (the request lost: sent again)."""
+        req = ChangeState.Request()
+        req.transition.id = transition_id
+        for _ in range(5):
+            r = self._call(self.change, req)
+            if r is not None:
+                return r.success
+            if self.state() == TARGET[transition_id]:
+                return True
+        raise AssertionError('ChangeState did not answer')
+
+
+def lifecycle_node(context, **params):
+    overrides = [Parameter('qos_reliability', value='reliable'), Parameter('qos_depth', value=5000)]
+    overrides += [Parameter(k, value=v) for k, v in params.items()]
+    return CcfLifecycleNode(context=context, parameter_overrides=overrides)
+
+
+def _count_subscribers(h: Harness) -> int:
+    return h.io.count_subscribers('/imu/data_raw')
+
+
+def test_lifecycle_transitions_over_dds(context, inputs):
+    """unconfigured -> inactive -> active (answers as replay) -> inactive (no subscription) -> active (the estimate
+    kept) -> cleanup (state dropped); a bad parameter fails configure, the node stays unconfigured."""
+    node = lifecycle_node(context, tau_acc_s=0.0)  # invalid: configure must fail
+    h = Harness(context, node)
+    try:
+        m = Manager(h)
+        assert m.state() == UNCONFIGURED and not node.is_open
+        assert not m.transition(Transition.TRANSITION_CONFIGURE)
+        assert m.state() == UNCONFIGURED
+        node.set_parameters([Parameter('tau_acc_s', value=1.0)])  # not checked while unconfigured
+        assert m.transition(Transition.TRANSITION_CONFIGURE) and m.state() == INACTIVE
+        assert node.engine.filter.params.tau_acc_s == 1.0
+        assert _count_subscribers(h) == 0 and not node.is_open
+        # Configured but inactive: parameters are checked live again.
+        assert not node.set_parameters([Parameter('tau_acc_s', value=-1.0)])[0].successful
+
+        assert m.transition(Transition.TRANSITION_ACTIVATE) and m.state() == ACTIVE
+        h.wait_connected()
+        first, second = inputs[:600], inputs[600:1200]
+        h.feed(first, 300)
+        assert len(h.out) == 300
+
+        assert m.transition(Transition.TRANSITION_DEACTIVATE) and m.state() == INACTIVE
+        assert not node.is_open
+        assert h.spin_until(lambda: _count_subscribers(h) == 0), 'subscriptions not destroyed on deactivate'
+        assert h.spin_until(lambda: h.io.count_publishers('/imu/data') == 0)
+
+        assert m.transition(Transition.TRANSITION_ACTIVATE) and m.state() == ACTIVE
+        h.wait_connected()
+        h.feed(second, 600)
+        assert len(h.out) == 600
+        ref = _replay_reference(first + second, {'tau_acc_s': 1.0})
+        np.testing.assert_array_equal(_xyzw(h.out), _ref_xyzw(ref))  # the estimate went on across deactivation
+
+        assert m.transition(Transition.TRANSITION_DEACTIVATE) and m.transition(Transition.TRANSITION_CLEANUP)
+        assert m.state() == UNCONFIGURED and not node.engine.filter.initialized
+        assert m.transition(Transition.TRANSITION_UNCONFIGURED_SHUTDOWN) and m.state() == FINALIZED
+    finally:
+        h.close()
+
+
+@pytest.mark.parametrize('start', [UNCONFIGURED, INACTIVE, ACTIVE])
+def test_shutdown_from_every_state(context, inputs, start):
+    node = lifecycle_node(context)
+    h = Harness(context, node)
+    try:
+        m = Manager(h)
+        if start != UNCONFIGURED:
+            assert m.transition(Transition.TRANSITION_CONFIGURE)
+        if start == ACTIVE:
+            assert m.transition(Transition.TRANSITION_ACTIVATE)
+            h.wait_connected()
+            h.feed(inputs[:200], 100)
+        assert m.state() == start
+        assert m.transition(SHUTDOWN_FROM[start]) and m.state() == FINALIZED
+        assert not node.is_open
+        assert h.spin_until(lambda: _count_subscribers(h) == 0)
+        assert not list(node.subscriptions)
+        assert not {p.topic_name for p in node.publishers} & {'/imu/data', '/imu/gyro_bias', '/diagnostics'}
+    finally:
+        h.close()
+
+
+@pytest.mark.parametrize('start', [UNCONFIGURED, ACTIVE])
+def test_installed_lifecycle_node_exits_cleanly_on_sigint(context, inputs, start):
+    exe = shutil.which('ccf_lifecycle_node', path=str(Path(sys.executable).parent))
+    cmd = [exe] if exe else [sys.executable, '-c', 'from ccf_ros.node import lifecycle_main; lifecycle_main()']
+    proc = subprocess.Popen(cmd + ['--ros-args', '-p', 'qos_reliability:=reliable', '-p', 'qos_depth:=5000'],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    h = Harness(context, None)
+    try:
+        m = Manager(h)
+        if start == ACTIVE:
+            assert m.transition(Transition.TRANSITION_CONFIGURE) and m.transition(Transition.TRANSITION_ACTIVATE)
+            h.wait_connected(timeout=20)
+            h.feed(inputs[:400], 200)
+            assert len(h.out) == 200
+        assert m.state() == start
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            out, _ = proc.communicate(timeout=20)
+        finally:
+            h.close()
+    assert proc.returncode == 0, out
+    assert 'Traceback' not in out
+
+
+def test_launch_file_starts_the_lifecycle_node_on_lifecycle_true():
+    """launch_ros is not in the pip install: the file is checked for what it launches under which condition."""
+    import ast
+
+    tree = ast.parse((Path(__file__).resolve().parents[1] / 'launch' / 'ccf.launch.py').read_text())
+    calls = {n.func.id: n for n in ast.walk(tree) if isinstance(n, ast.Call) and isinstance(n.func, ast.Name)}
+    args = [c.args[0].value for c in ast.walk(tree) if isinstance(c, ast.Call)
+            and getattr(c.func, 'id', '') == 'DeclareLaunchArgument']
+    assert 'lifecycle' in args
+    for action, executable, condition in (('Node', 'ccf_node', 'UnlessCondition'),
+                                          ('LifecycleNode', 'ccf_lifecycle_node', 'IfCondition')):
+        kw = {k.arg: k.value for k in calls[action].keywords if k.arg}
+        assert kw['executable'].value == executable
+        assert kw['condition'].func.id == condition
+    setup = (Path(__file__).resolve().parents[1] / 'setup.py').read_text()
+    assert "'ccf_lifecycle_node = ccf_ros.node:lifecycle_main'" in setup
+
+
+def test_component_launch_file_starts_the_plain_drop_in():
+    """launch/imu_filter_component.launch.py (for users of imu_tools' component launch file) includes
+    imu_filter.launch.py, the plain imu_filter_madgwick_node, and loads no component container."""
+    import ast
+
+    text = (Path(__file__).resolve().parents[1] / 'launch' / 'imu_filter_component.launch.py').read_text()
+    tree = ast.parse(text)
+    names = {n.func.id for n in ast.walk(tree) if isinstance(n, ast.Call) and isinstance(n.func, ast.Name)}
+    assert 'IncludeLaunchDescription' in names and 'ComposableNodeContainer' not in names
+    assert "'imu_filter.launch.py'" in text

@@ -1,0 +1,78 @@
+"""ccf_node over DDS: set_pose sets the heading (6-D: the state, 9-D: an offset), motion_hint_topic subscribed with
+the type the graph shows (nav_msgs/Odometry or geometry_msgs/TwistStamped)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+rclpy = pytest.importorskip('rclpy')
+
+from geometry_msgs.msg import PoseWithCovarianceStamped, TwistStamped  # noqa: E402
+from nav_msgs.msg import Odometry  # noqa: E402
+from rosutil import read_inputs  # noqa: E402
+from test_node import Harness, _ref_xyzw, _replay_reference, _xyzw, reliable_node  # noqa: E402
+
+from ccf_ros.core.quaternion import from_xyzw, rpy_of  # noqa: E402
+from ccf_ros.engine import ImuEngine  # noqa: E402
+from ccf_ros.settings import build  # noqa: E402
+
+
+@pytest.fixture(scope='module')
+def inputs(sim_bag):
+    return read_inputs(sim_bag, 4.0)
+
+
+@pytest.mark.parametrize(('use_mag', 'how'), [(False, 'state'), (True, 'offset')])
+def test_set_pose_sets_the_heading_as_the_engine_does(context, inputs, use_mag, how):
+    node = reliable_node(context, use_mag=use_mag)
+    h = Harness(context, node)
+    try:
+        pub = h.io.create_publisher(PoseWithCovarianceStamped, 'set_pose', 10)
+        h.wait_connected()
+        assert h.spin_until(lambda: pub.get_subscription_count() > 0)
+        first, second = inputs[:800], inputs[800:1200]
+        h.feed(first, 400)
+        pose = PoseWithCovarianceStamped()
+        pose.header.frame_id = 'map'
+        pose.pose.pose.orientation.z, pose.pose.pose.orientation.w = math.sin(0.5), math.cos(0.5)  # yaw 1 rad
+        pub.publish(pose)
+        assert h.spin_until(lambda: node.n_set_pose == 1), 'set_pose not received'
+        h.feed(second, 600)
+        yaw = rpy_of(from_xyzw(*_xyzw(h.out[400:401])[0]))[2]
+        assert yaw == pytest.approx(1.0, abs=0.01)  # one sample after
+        eng = ImuEngine(*build({'use_mag': use_mag}, strict=False))
+        ref = _replay_reference(first, engine=eng)
+        assert eng.set_heading(1.0) == how
+        ref += _replay_reference(second, engine=eng)
+        np.testing.assert_array_equal(_xyzw(h.out), _ref_xyzw(ref))
+    finally:
+        h.close()
+
+
+@pytest.mark.parametrize('msg_type', [Odometry, TwistStamped])
+def test_motion_hint_topic_is_subscribed_with_its_graph_type(context, msg_type):
+    node = reliable_node(context, motion_hint_topic='odom')
+    h = Harness(context, node)
+    try:
+        assert node.sub_hint is None  # nothing on the graph yet
+        pub = h.io.create_publisher(msg_type, '/odom', 10)
+        assert h.spin_until(lambda: node.sub_hint is not None, 10.0), 'motion hint not subscribed'
+        assert node.sub_hint.msg_type is msg_type
+        assert h.spin_until(lambda: pub.get_subscription_count() > 0)
+
+        def send(turn_rad_s):
+            msg = msg_type()
+            msg.header.stamp.sec = 100
+            twist = msg.twist.twist if msg_type is Odometry else msg.twist
+            twist.angular.z = turn_rad_s
+            pub.publish(msg)
+
+        send(math.radians(1.0))  # a slow turn: moving
+        assert h.spin_until(lambda: node.engine.filter.still_hint is False)
+        send(0.0)
+        assert h.spin_until(lambda: node.engine.filter.still_hint is True)
+    finally:
+        h.close()
