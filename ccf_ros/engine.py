@@ -404,6 +404,13 @@ class ImuEngine:
         if state.frame_id and frame_id and state.frame_id != frame_id:
             self._warn(f'bias_file ignored: written for frame_id {state.frame_id!r}, this IMU is {frame_id!r}')
             return
+        heading = state.sections.get('heading')
+        if self.settings.bias_file_heading and heading is not None:
+            yaw = heading.get('yaw_rad') if isinstance(heading, dict) else None
+            if isinstance(yaw, (int, float)) and not isinstance(yaw, bool) and math.isfinite(yaw):
+                self.restore_heading(float(yaw))
+            else:
+                self._warn(f'bias_file: heading section ignored: {heading!r}')
         hi = state.sections.get('hard_iron')
         if hi is not None and self.hard_iron is not None:
             try:
@@ -431,6 +438,8 @@ class ImuEngine:
         sigma = getattr(self.filter, 'gyro_bias_sigma_rad_s', None)
         st = State(self.sensor_frame_id or '', time.time())
         st.set_gyro_bias((b[0] + o[0], b[1] + o[1], b[2] + o[2]), None if sigma is None else float(sigma))
+        if self.settings.bias_file_heading and (yaw := self.heading_state()) is not None:
+            st.sections['heading'] = {'yaw_rad': yaw}
         hi = self.hard_iron_state()
         if hi is not None:
             # (In the output frame, where the estimator runs; it is restored only for the same frame_id.)

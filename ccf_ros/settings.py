@@ -37,6 +37,7 @@ ENGINE_DEFAULTS: dict[str, Any] = {
     'output_frame_id': '',
     'gyro_offset_rad_s': (0.0, 0.0, 0.0),
     'bias_file': '',
+    'bias_file_heading': False,
     'mag_online_calibration': False,
     'mag_online_memory_rad': 60.0,
 }
@@ -143,6 +144,8 @@ DESCRIPTIONS: dict[str, str] = {
                          '(datasheet, calibration)',
     'bias_file': 'JSON file of the learnt gyro bias (IMU frame, with its sigma and frame_id): loaded at start, written '
                  'atomically on shutdown (and every bias_save_interval_s by the node, at the end by replay); empty = none',
+    'bias_file_heading': '6-D: also keep the heading in bias_file, so that a restart goes on from the heading it had '
+                         '(the robot must not have turned while the node was down)',
     'publish_debug_topics': 'node: also publish imu/rpy/filtered and imu/rpy/raw (roll, pitch, yaw in rad)',
     'gyro_bias_rate_hz': 'node: highest rate of imu/gyro_bias, Hz (the bias changes over seconds); 0 = every sample',
     'qos_reliability': 'node: input QoS reliability, best_effort (sensor data) or reliable',
@@ -187,6 +190,7 @@ class AdapterSettings:
     output_frame_id: str = ''
     gyro_offset_rad_s: tuple[float, ...] = (0.0, 0.0, 0.0)
     bias_file: str = ''
+    bias_file_heading: bool = False
     mag_online_calibration: bool = False
     mag_online_memory_rad: float = 60.0
 
@@ -208,7 +212,8 @@ class AdapterSettings:
             raise ValueError(f'mag_soft_iron must be 9 finite numbers (row-major 3x3), got {self.mag_soft_iron!r}')
         if not 1.0 <= self.mag_online_memory_rad <= 1e6:
             raise ValueError(f'mag_online_memory_rad must be within [1, 1e6] rad, got {self.mag_online_memory_rad!r}')
-        for name in ('remove_gravity_vector', 'stateless', 'bias_corrected_rate', 'mag_online_calibration'):
+        for name in ('remove_gravity_vector', 'stateless', 'bias_corrected_rate', 'mag_online_calibration',
+                     'bias_file_heading'):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f'{name} must be a bool, got {getattr(self, name)!r}')
         rotation_matrix('mount_rotation', self.mount_rotation)
@@ -282,7 +287,8 @@ def adapter_settings(values: Mapping[str, Any]) -> AdapterSettings:
         if name in values:
             v = values[name]
             kw[name] = '' if v is None else v  # an empty YAML value is None
-    for name in ('remove_gravity_vector', 'stateless', 'bias_corrected_rate', 'mag_online_calibration'):
+    for name in ('remove_gravity_vector', 'stateless', 'bias_corrected_rate', 'mag_online_calibration',
+                 'bias_file_heading'):
         if name in values:
             kw[name] = _flag(name, values[name])
     return AdapterSettings(**kw)

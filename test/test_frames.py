@@ -403,3 +403,28 @@ def test_replay_with_a_foreign_bias_file_warns_once_and_runs(sim_bags, tmp_path,
     _, bias = read_out(tmp_path / 'out')
     assert np.linalg.norm((bias[0].vector.x, bias[0].vector.y, bias[0].vector.z)) < 0.01  # not the file's 0.5
     assert read_state(path).frame_id == 'imu_link'  # replaced by this IMU's at the end
+
+
+def test_bias_file_heading_keeps_the_6d_heading_across_a_restart(tmp_path):
+    """bias_file_heading: a 6-D filter restarted (the robot did not turn meanwhile) goes on from its last heading
+    instead of 0; without the option the heading starts again from 0, as before."""
+    from ccf_ros.core.quaternion import rpy_of
+
+    sim = generate(40.0, 100.0, seed=4)
+    path = tmp_path / 'state.json'
+    half = len(sim.t_s) // 2
+    first = engine(use_mag=False, bias_file=str(path), bias_file_heading=True)
+    first.set_sensor_frame('imu_link')
+    run(first, sim.t_s[:half], sim.gyr[:half], sim.acc[:half], sim.mag[:half])
+    yaw_before = first.heading_state()
+    first.save_state(path)
+    assert abs(read_state(path).sections['heading']['yaw_rad'] - yaw_before) < 1e-12
+    yaws = {}
+    for keep in (True, False):
+        second = engine(use_mag=False, bias_file=str(path), bias_file_heading=keep)
+        second.set_sensor_frame('imu_link')
+        assert second.on_imu(sim.t_s[half], tuple(sim.gyr[half]), tuple(sim.acc[half])) is not None
+        yaws[keep] = rpy_of(second.filter.quaternion)[2]
+    assert abs(math.remainder(yaws[True] - yaw_before, 2 * math.pi)) < math.radians(0.5), (yaws, yaw_before)
+    # Without the option the restart's heading is the level start's, unrelated to the one before.
+    assert abs(math.remainder(yaws[False] - yaw_before, 2 * math.pi)) > math.radians(2.0), (yaws, yaw_before)
