@@ -706,9 +706,11 @@ class CcfNode(Node):
             self.get_logger().warning(text)
 
     def save_state(self) -> None:
-        """Write bias_file now (atomically); a failure is a warning (the node runs on)."""
-        path = str(self._settings['bias_file'])
-        if not path:
+        """Write bias_file now (atomically); a failure is a warning (the node runs on). Nothing before the node has
+        settings and an engine (a lifecycle node that was never configured)."""
+        settings = getattr(self, '_settings', None)
+        path = str(settings['bias_file']) if settings is not None else ''
+        if not path or getattr(self, 'engine', None) is None:
             return
         try:
             self.engine.save_state(path)
@@ -789,6 +791,7 @@ class CcfLifecycleNode(LifecycleNodeMixin, CcfNode):
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._close_ccf()
+        self.save_state()
         return TransitionCallbackReturn.SUCCESS
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
