@@ -98,6 +98,7 @@ class ImuEngine:
         self._no_acc_before = 0
         self._no_mag_before = 0
         self._nonfinite_before = 0
+        self._clipped_before = 0
         self._stateless_q: tuple[float, float, float, float] | None = None
         #: the held stateless orientation's heading came from a magnetometer sample
         self._stateless_heading = False
@@ -162,6 +163,7 @@ class ImuEngine:
         self._no_acc_before += f.n_no_acc
         self._no_mag_before += f.n_no_mag
         self._nonfinite_before += f.n_nonfinite_resets
+        self._clipped_before += getattr(f, 'n_gyro_clipped', 0)
 
     def replace_filter(self, filt: OrientationFilter) -> None:
         """Run ``filt`` from the next sample on (a fresh estimate); the counters keep counting."""
@@ -260,6 +262,8 @@ class ImuEngine:
             if t_s > self._t_last:
                 self._t_last = t_s
         mag = self.pairer.get(t_s)
+        if t_s > self._hint_until:  # (by header stamps, as the hint's, before constant_dt's clock replaces them)
+            self._expire_hint()
         if self._constant_dt > 0.0:
             # Fixed sample period: a synthetic clock advanced per message replaces the header stamps.
             self._t_const += self._constant_dt
@@ -271,8 +275,6 @@ class ImuEngine:
         self.paired_mag = mag
         if self._stateless:
             return self._stateless_output(t_s, gyr, acc, mag)
-        if t_s > self._hint_until:
-            self._expire_hint()
         status = f.update(t_s, gyr, acc, mag)
         if self._pending_heading is not None and f.initialized:
             self._apply_pending_heading()
@@ -453,8 +455,8 @@ class ImuEngine:
         Raises:
             OSError: not writable.
         """
-        if not self.filter.initialized and not self.n_out:
-            return
+        if not self.filter.initialized:
+            return  # (after a reset too: a zero bias must not replace the learnt one)
         st = self.state()
         try:
             old = read_state(path)
@@ -508,6 +510,11 @@ class ImuEngine:
         """Times the filter state became non-finite and was re-initialised."""
         return self._nonfinite_before + self.filter.n_nonfinite_resets
 
+    @property
+    def n_gyro_clipped(self) -> int:
+        """Gyro samples at ``gyro_range_rad_s`` since the engine was made (filter restarts included)."""
+        return self._clipped_before + int(getattr(self.filter, 'n_gyro_clipped', 0))
+
     # --- heading and motion hint --------------------------------------------------------------------------------
     def _clear_heading_offset(self) -> None:
         if self.heading_offset_rad:
@@ -522,6 +529,8 @@ class ImuEngine:
         ``state``, or ``not initialised`` (nothing done).
         """
         f = self.filter
+        if not math.isfinite(yaw_rad):
+            return 'ignored: not finite'
         if not f.initialized:
             return 'not initialised'
         q = f.quaternion

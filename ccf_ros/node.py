@@ -228,6 +228,8 @@ class CcfNode(Node):
         for text in self.engine.warnings:
             self.get_logger().warning(text)
         self.engine.on_warning = self.get_logger().warning
+        if getattr(self, '_save_timer', None) is not None:  # a lifecycle node configured again
+            self.destroy_timer(self._save_timer)
         self._save_timer: Any = None
         self._save_every: tuple[str | None, float] = (None, 0.0)
         self.sync: ImuMagSync[Held] = ImuMagSync(self.HOLD_S)
@@ -308,6 +310,10 @@ class CcfNode(Node):
         self.pub_rpy = self.pub_rpy_raw = self.pub_steady = self.pub_tf = None
         self.destroy_service(self.srv_reset)
         self.destroy_timer(self.timer)
+        if self._save_timer is not None:  # (made again by the next _open_ccf's _cache_settings)
+            self.destroy_timer(self._save_timer)
+            self._save_timer = None
+            self._save_every = (None, 0.0)
 
     def _resolved_hint_topic(self) -> str:
         topic = str(self._settings['motion_hint_topic'])
@@ -353,6 +359,10 @@ class CcfNode(Node):
     def _on_set_pose(self, msg: PoseWithCovarianceStamped) -> None:
         """Set the output's heading to the yaw of the pose's orientation (roll, pitch and position ignored)."""
         o = msg.pose.pose.orientation
+        n2 = o.x * o.x + o.y * o.y + o.z * o.z + o.w * o.w
+        if not (math.isfinite(n2) and n2 > 1e-6):
+            self.get_logger().warning(f'set_pose ignored: orientation {o.x, o.y, o.z, o.w} is not a rotation')
+            return
         yaw = rpy_of(from_xyzw(o.x, o.y, o.z, o.w))[2]
         # Samples held for their magnetometer sample came before the pose: answered with the old heading.
         self._answer_all(self.sync.flush(time.monotonic()))
@@ -795,6 +805,7 @@ class CcfLifecycleNode(LifecycleNodeMixin, CcfNode):
         return TransitionCallbackReturn.SUCCESS
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.save_state()  # before the estimate is dropped
         self.engine.reset()
         self.sync.reset()
         self.stats = InputStats()

@@ -312,6 +312,7 @@ def diagnostics(
         'gyro-only samples (bad accelerometer)': str(engine.n_no_acc),
         'samples without heading (bad magnetometer)': str(engine.n_no_mag),
         'non-finite state resets': str(n_nonfinite),
+        'gyro samples clipped (at gyro_range_rad_s)': str(engine.n_gyro_clipped),
         'initialized': _yes(flags.initialized),
         'at rest': _yes(flags.at_rest),
         'accelerometer used': _yes(flags.acc_used),

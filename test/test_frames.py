@@ -246,8 +246,8 @@ def test_the_bias_file_is_kept_in_the_imu_frame_with_the_offset(sim, tmp_path):
     path = tmp_path / 'bias.json'
     a = engine(mount_rotation=MOUNTS['arbitrary'], gyro_offset_rad_s=[0.01, 0.0, -0.02], bias_file=str(path))
     a.set_sensor_frame('imu_link')
+    a.on_imu(1.7e9, (0.0, 0.0, 0.0), (0.0, 0.0, 9.81))  # an orientation exists: the state is worth saving
     a.filter.set_gyro_bias((0.003, -0.004, 0.002), 1e-4)
-    a.n_out = 1
     a.save_state(path)
     R = np.array(rotation_matrix('m', MOUNTS['arbitrary'])).reshape(3, 3)
     b_imu = R.T @ [0.003, -0.004, 0.002] + [0.01, 0.0, -0.02]

@@ -1107,10 +1107,9 @@ class QuaternionCcf(OrientationFilter):
         self._var_head += var_clip
 
     def _end_rest(self) -> None:
-        """Motion again: a bias was seen at rest if the rest was one (from now on a steady rate must agree with it)."""
-        if self.at_rest:
-            self.at_rest = False
-            self._bias_rested = True
+        """Motion again. (Whether the bias counts as seen is decided in :meth:`_rest_agrees`, once the estimate
+        converged on a rest: a rest too short for that must not lock a half-learnt offset in.)"""
+        self.at_rest = False
 
     def _rest_agrees(self, ex: float, ey: float, ez: float) -> bool:
         """Whether a steady gyro (low-passed minus the bias estimate: ``ex, ey, ez``, rad/s) may be taken for rest.
@@ -1323,8 +1322,8 @@ class QuaternionCcf(OrientationFilter):
             self._gyro_lp = (bx, by, bz)  # the rest low-pass starts from it (as _init does from the bias)
         self._p_bias = (p, 0.0, 0.0, p, 0.0, p)
         self._u_bias = p / self.params.bias_sigma_init_rad_s**2
-        # A bias known this well counts as seen at a rest: a steady rate far from it is a turn (see _rest_agrees).
-        self._bias_rested = p < self.params.bias_sigma_init_rad_s**2
+        # A prior only: a consumer MEMS gyro's turn-on bias moves by up to ~1°/s between runs, so the next rest
+        # learns it afresh (see _rest_agrees).
         return True
 
     def magnetometer_changed(self) -> None:

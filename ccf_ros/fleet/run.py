@@ -252,10 +252,12 @@ def run_fleet(cfg: RunConfig) -> RunSummary:
         else:
             summary.n_done_before += 1
     if todo:
-        for _, key in todo:
-            result_path(out, key).unlink(missing_ok=True)  # --force / --retry-failed: the old result goes first
         with connect(cfg.scheduler, cfg.jobs) as client:
             check_versions(client, opts.version)
+            # --force / --retry-failed: the old results go once the cluster is there (an unreachable scheduler or
+            # workers of another version leave them as they were).
+            for _, key in todo:
+                result_path(out, key).unlink(missing_ok=True)
             _submit_and_collect(client, todo, cfg, summary, results)
     _clean_temporaries(out)
     if todo:

@@ -7,6 +7,7 @@ import json
 import math
 import os
 import time
+import uuid
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -72,13 +73,19 @@ def _write_first(path: Path, text: str) -> bool:
     """Like :func:`_write_atomic`, but only if ``path`` does not exist yet (a hard link fails then): when Dask runs a
     task twice (a worker lost after it finished, before its result was gathered; work stealing), the first complete
     result stays. Returns whether this one was written."""
-    tmp = path.with_name(f'.{path.name}.{os.getpid()}.tmp')
+    # (Unique across hosts sharing the folder: pids alone repeat.)
+    tmp = path.with_name(f'.{path.name}.{uuid.uuid4().hex}.tmp')
     try:
         tmp.write_text(text)
         try:
             os.link(tmp, path)
         except FileExistsError:
             return False
+        except OSError:
+            # A file system without hard links (some SMB/FUSE mounts): a rename, last writer wins.
+            if path.exists():
+                return False
+            tmp.replace(path)
         return True
     finally:
         tmp.unlink(missing_ok=True)

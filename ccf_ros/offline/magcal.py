@@ -474,6 +474,10 @@ def _planar(args: argparse.Namespace, raw: np.ndarray, axes: Any) -> MagCalibrat
               '--field-dip-deg to fit it)')
     else:
         print(f'offset along the axis: {pc.axial_offset_t * 1e6:.3f} uT (from the field {pc.axial_source})')
+        if pc.axial_source == 'norm':
+            # The norm gives the vertical component's size, not its sign.
+            print('  (the field taken to point down, as north of the magnetic equator: south of it give '
+                  '--field-dip-deg, negative there)')
     print('soft iron S (m_cal = S (m_raw - b)), in the plane only:')
     for row in cal.matrix:
         print('  ' + ' '.join(f'{v:9.5f}' for v in row))

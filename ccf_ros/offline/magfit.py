@@ -145,6 +145,7 @@ def _true_axial(radius: float, field_norm_t: float | None, field_dip_rad: float 
         if field_norm_t <= radius:
             raise CalibrationError(f'the field norm {field_norm_t * 1e6:.2f} uT is below the horizontal radius '
                                    f'{radius * 1e6:.2f} uT the recording shows: check --field-norm-ut')
+        # The norm gives the vertical component's size only: down (positive dip), as north of the magnetic equator.
         return -math.sqrt(field_norm_t**2 - radius**2), 'norm'
     return None, 'none'
 

@@ -80,6 +80,8 @@ class ReplaySummary:
     n_answered_stale: int = 0
     n_resets_jump: int = 0
     n_nonfinite_resets: int = 0
+    #: gyro samples at gyro_range_rad_s
+    n_gyro_clipped: int = 0
     #: the filter's flags after the last sample (:class:`~ccf_ros.core.base.FilterFlags` as a dict)
     flags: dict[str, bool] = field(default_factory=dict)
     #: what the user should know about the run (e.g. no magnetometer topic in the bag), one sentence each
@@ -93,7 +95,7 @@ class ReplaySummary:
             f'samples in {self.n_in}, out {self.n_out}, skipped: {skipped} (these {self.n_answered_stale} answered with '
             f'the current orientation); gyro-only (bad accelerometer) {self.n_no_acc}, no heading (bad magnetometer) '
             f'{self.n_no_mag}; restarts after clock jumps {self.n_resets_jump}, non-finite state {self.n_nonfinite_resets}; '
-            f'flags at the end: {on}; {rate:,.0f} samples/s'
+            f'gyro clipped {self.n_gyro_clipped}; flags at the end: {on}; {rate:,.0f} samples/s'
         )
 
 
@@ -175,6 +177,7 @@ def replay(
         n_answered_stale=engine.n_answered_stale,
         n_resets_jump=engine.n_resets_jump,
         n_nonfinite_resets=engine.n_nonfinite_resets,
+        n_gyro_clipped=engine.n_gyro_clipped,
         flags=engine.filter.flags._asdict(),
         warnings=warnings,
     )
