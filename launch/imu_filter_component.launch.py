@@ -6,7 +6,7 @@ imu_tools' file loads ``ImuFilterMadgwickRos`` into an ``rclcpp_components`` con
 rclpy node cannot be loaded into that container, so this file starts ``imu_filter_madgwick_node`` (named
 ``imu_filter``, as the component) as its own process, exactly as ``imu_filter.launch.py`` does. What is lost is
 intra-process communication with other components of the same container; at IMU rates (a few hundred messages of
-~300 bytes per second) the loopback copy costs microseconds per message (doc/drafts/node.md).
+~300 bytes per second) the loopback copy costs microseconds per message (README: Composable launch files).
 """
 
 import os
