@@ -806,12 +806,11 @@ class QuaternionCcf(OrientationFilter):
             blk_t = h_sum = we = wn = wu = scx = scy = scz = 0.0
             blk_n = h_n = w_n = 0
         if c.rest_bias and acc_n2:
-            # Rest: the accelerometer within rest_acc_m_s2 of the filtered gravity (tested first: it fails first
-            # while moving, and then nothing else is needed), and the gyro within rest_gyro_rad_s of its low-pass.
-            # A sample without a usable accelerometer neither extends nor ends a rest (one corrupted message in a
-            # hundred would otherwise never let a rest last rest_min_s).
-            # The accelerometer is compared with its own low-pass in the body, not with the gravity the gyro carries:
-            # with an unknown offset of several °/s the carried gravity turns away while the IMU lies still.
+            # Rest: the accelerometer within rest_acc_m_s2 of its own low-pass in the body (tested first: it fails
+            # first while moving; not the gravity the gyro carries, which an unknown offset of several °/s turns
+            # away while the IMU lies still), and the gyro within rest_gyro_rad_s of its low-pass. A sample without
+            # a usable accelerometer neither extends nor ends a rest (one corrupted message in a hundred would
+            # otherwise never let a rest last rest_min_s).
             if self._rest_s:
                 alx, aly, alz = self._acc_lp
             else:
@@ -1330,11 +1329,10 @@ class QuaternionCcf(OrientationFilter):
         """The magnetometer's calibration changed (online hard iron applied): the disturbance gate's reference field
         is learnt anew from the next samples instead of rejecting the corrected field for ``mag_reaccept_s``."""
         if self.initialized:
+            # (This also restarts the consistency check's band-pass: the field's world direction jumps with the
+            # offset. Heading follows over tau_mag_s: snapping it to the first applied offsets, which are refined for
+            # a while, measured worse.)
             self._forget_mag_reference()
-            # The field's world direction jumps with the offset: its band-pass starts again. (Heading follows over
-            # tau_mag_s: snapping it to the first applied offsets, which are refined for a while, measured worse.)
-            self._mag_band = None
-            self._mag_consistent = True
 
     def _rotate_about_up(self, angle_rad: float) -> None:
         """:meth:`OrientationFilter.set_heading`'s turn: the LCF orientation and the NCF offset ``dn`` (world frame)
