@@ -60,6 +60,11 @@ def test_every_relative_link_resolves():
     assert (ROOT / 'CHANGELOG.md').exists()
 
 
+def test_every_document_opens_with_its_title():
+    firsts = {p.name: p.read_text(encoding='utf-8').split('\n', 1)[0] for p in documents() if p.exists()}
+    assert {name: line for name, line in firsts.items() if not line.startswith('# ')} == {}
+
+
 def test_the_checker_sees_a_broken_file_and_a_broken_anchor(tmp_path):
     (tmp_path / 'a.md').write_text('# Top `x` (y)\n\n## Top `x` (y)\n', encoding='utf-8')
     doc = tmp_path / 'b.md'
