@@ -21,7 +21,7 @@ from dataclasses import dataclass, fields
 from enum import IntEnum
 from typing import NamedTuple
 
-from .fields import param
+from .fields import param as param  # re-exported: the params dataclasses define their fields with it
 from .quaternion import WORLD_FRAMES, quat_mul_scalar, rpy_of
 
 
@@ -141,10 +141,13 @@ def check_params(params: object) -> None:
         elif m['per_axis']:
             per_axis(name, value, lo, hi)
         elif isinstance(f.default, tuple):
-            floats(name, value, len(f.default), lo, hi, what=m['what'])
+            n = len(value) if isinstance(value, tuple) and len(value) in m['lengths'] else m['lengths'][0]
+            floats(name, value, n, lo, hi, what=m['what'])
         elif isinstance(f.default, str):
-            if not isinstance(value, str) or (m['choices'] and value not in m['choices']):
+            if m['choices'] and value not in m['choices']:
                 raise ValueError(f'{name} must be one of {list(m["choices"])}, got {value!r}')
+            if not isinstance(value, str):
+                raise ValueError(f'{name} must be a string, got {value!r}')
         else:
             if m['above']:
                 check_positive(name, value)

@@ -18,15 +18,19 @@ FALSE_TEXT = ('false', '0', 'no', 'off')
 
 
 def param(default: Any, unit: str, description: str, lo: float | None = None, hi: float | None = None, *,
-          above: bool = False, choices: tuple[str, ...] = (), per_axis: bool = False, what: str = '') -> Any:
+          above: bool = False, choices: tuple[str, ...] = (), per_axis: bool = False, what: str = '',
+          lengths: tuple[int, ...] = ()) -> Any:
     """A params-dataclass field defined once: its default, SI unit (``-``: none), one-line description and, for
     numbers (each element of a list), the inclusive range ``[lo, hi]`` (``above``: ``lo`` itself excluded).
 
-    ``choices``: the allowed strings; ``per_axis``: one number or ``[roll, pitch, yaw]``; ``what``: how a list
-    value is described in an error (``'9 numbers'``).
+    ``choices``: the allowed strings; ``per_axis``: one number or ``[roll, pitch, yaw]``; a list's allowed
+    ``lengths`` (default: the default's) and ``what`` it is called in an error (``'9 numbers'``).
     """
+    if isinstance(default, tuple) and not lengths:
+        lengths = (len(default),)
     meta = {'unit': unit, 'description': description, 'range': None if lo is None else (lo, hi), 'above': above,
-            'choices': choices, 'per_axis': per_axis, 'what': what}
+            'choices': choices, 'per_axis': per_axis, 'what': what or f'{lengths[0] if lengths else 1} numbers',
+            'lengths': lengths}
     return field(default=default, metadata=meta)
 
 
@@ -67,6 +71,6 @@ def parse_numbers(name: str, value: Any, what: str = 'a list of numbers') -> tup
     else:
         items = value
     try:
-        return tuple(parse_number(name, v) for v in items)
-    except ValueError:
+        return tuple(parse_number(name, v) for v in items)  # an element that is no number: its own error
+    except TypeError:
         raise ValueError(f'{name} must be {what}, got {value!r}') from None
