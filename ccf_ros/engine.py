@@ -127,7 +127,6 @@ class ImuEngine:
         self.pairer.timeout_s = settings.mag_timeout_s
         self._constant_dt = settings.constant_dt
         self._stddev = settings.orientation_stddev
-        self._var_min = settings.orientation_stddev_min_rad ** 2
         bx, by, bz = settings.mag_bias
         # Mounting: the IMU's vectors into the output frame, v_out = R (v - offset) (offset: the gyro's only).
         rot = settings.mount_matrix
@@ -298,7 +297,6 @@ class ImuEngine:
         f = self.filter
         sd = self._stddev
         vr, vp, vy = (sd * sd,) * 3 if sd > 0.0 else variance or f.orientation_variance
-        vr, vp, vy = max(vr, self._var_min), max(vp, self._var_min), max(vy, self._var_min)
         bias = f.gyro_bias
         rate = None
         if self._corrected_rate:

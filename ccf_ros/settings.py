@@ -86,8 +86,6 @@ class EngineSettings:
     mag_online_memory_rad: float = param(
         60.0, 'rad', 'rotation the online hard-iron estimate remembers, rad (1 to 1e6; older pairs fade by '
         'exp(-turn / this))', 1.0, 1e6)
-    orientation_stddev_min_rad: float = param(
-        0.0, 'rad', 'the reported orientation std is at least this, rad', 0.0, math.pi)
 
     def __post_init__(self) -> None:
         check_params(self)
