@@ -471,10 +471,10 @@ def markdown_table() -> str:
 
 def readme_table_is_current(readme_text: str) -> bool | None:
     """Whether the table between the markers in ``readme_text`` is :func:`markdown_table`'s; None: no markers."""
-    if README_BEGIN not in readme_text or README_END not in readme_text:
+    if README_BEGIN not in readme_text or README_END not in readme_text.partition(README_BEGIN)[2]:
         return None
     a = readme_text.index(README_BEGIN)
-    b = readme_text.index(README_END) + len(README_END)
+    b = readme_text.index(README_END, a) + len(README_END)
     return readme_text[a:b] + '\n' == markdown_table()
 
 
