@@ -150,5 +150,5 @@ def test_old_names_stay_importable():
     assert set(settings.ADAPTER_DEFAULTS) == set(settings.ENGINE_DEFAULTS) | set(settings.NODE_DEFAULTS) | set(
         settings.IMU_TOOLS_GAINS)
     assert settings.DESCRIPTIONS['tau_acc_s'].startswith('quaternion: ')
-    assert PER_AXIS == {'kp', 'ki', 'alpha', 'lcf_alpha'} and parameter_range('gain') == (0.0, 1.0)
+    assert {'kp', 'ki', 'alpha', 'lcf_alpha'} == PER_AXIS and parameter_range('gain') == (0.0, 1.0)
     assert coerce_parameter('kp', [1, 2, 3], 25.0) == (1.0, 2.0, 3.0)
