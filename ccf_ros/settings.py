@@ -312,7 +312,7 @@ def _coerce(p: Parameter, value: Any) -> Any:
     if isinstance(p.default, tuple):
         vals = parse_numbers(name, value, p.what)
         if p.range and not all(lo <= x <= hi for x in vals):
-            raise ParameterError(f'{name} must be within [{lo:g}, {hi:g}] each, got {value!r}')
+            raise ParameterError(f'{name} must be within {_range_text(p)} each, got {value!r}')
         return vals
     if isinstance(p.default, str):
         value = '' if value is None else value  # an empty YAML value is None
@@ -327,7 +327,8 @@ def _coerce(p: Parameter, value: Any) -> Any:
             raise ParameterError(f'{name} must be an integer, got {value!r}')
         number = int(number)
     if not lo <= number <= hi or (p.above and number <= lo):  # NaN too
-        raise ParameterError(f'{name} must be within {"(" if p.above else "["}{lo:g}, {hi:g}], got {value!r}')
+        unit = '' if p.unit == '-' else f' {p.unit}'
+        raise ParameterError(f'{name} must be within {_range_text(p)}{unit}, got {value!r}')
     return number
 
 
