@@ -118,7 +118,7 @@ def _need_rclpy(what: str) -> None:
 
 def cmd_replay(args: argparse.Namespace) -> int:
     from .offline.replay import replay
-    from .settings import NODE_DEFAULTS
+    from .settings import NODE_DEFAULTS, coerce, names
 
     engine = _engine(args)
     from_files, given = _settings(args)
@@ -128,8 +128,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
         args.output,
         engine,
         motion_hint_topic=args.motion_hint_topic,
-        motion_hint=(float(st['motion_hint_linear_m_s']), float(st['motion_hint_angular_rad_s']),
-                     float(st['motion_hint_timeout_s'])),
+        motion_hint=(coerce('motion_hint_linear_m_s', st['motion_hint_linear_m_s']),
+                     coerce('motion_hint_angular_rad_s', st['motion_hint_angular_rad_s']),
+                     coerce('motion_hint_timeout_s', st['motion_hint_timeout_s'])),
         imu_topic=args.imu_topic,
         mag_topic=args.mag_topic,
         detect=True,
@@ -139,7 +140,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         overwrite=args.overwrite,
     )
     hint_settings = {'motion_hint_linear_m_s', 'motion_hint_angular_rad_s', 'motion_hint_timeout_s'}
-    node_only = sorted(set(_settings(args)[1]) & set(NODE_DEFAULTS) - hint_settings)
+    node_only = sorted(set(_settings(args)[1]) & set(names('node')) - hint_settings)
     if node_only:
         summary.warnings.append(f'{", ".join(node_only)}: node settings, without effect on replay (it writes '
                                 '/imu/gyro_bias for every sample)')
@@ -273,57 +274,18 @@ def cmd_study(args: argparse.Namespace) -> int:
     return 0
 
 
-#: Units by name suffix, longest first (``_rad_s_sqrt_s`` before ``_rad_s`` before ``_s``).
-UNIT_SUFFIXES = (
-    ('_rad_s_sqrt_s', '(rad/s)/√s'),
-    ('_rad_sqrt_s', 'rad/√s'),
-    ('_rad_s', 'rad/s'),
-    ('_m_s2', 'm/s²'),
-    ('_rad', 'rad'),
-    ('_hz', 'Hz'),
-    ('_s', 's'),
-)
-
-
-#: Units of the parameters whose names keep imu_tools' or the paper's spelling (no unit suffix).
-UNITS_BY_NAME = {
-    'constant_dt': 's',
-    'orientation_stddev': 'rad',
-    'mag_bias_x': 'T',
-    'mag_bias_y': 'T',
-    'mag_bias_z': 'T',
-    'yaw_offset': 'rad',
-    'declination': 'rad',
-    'madgwick_beta': 'rad/s',
-    'kp': '1/s',
-    'mahony_kp': '1/s',
-    'ki': '1/s²',
-    'mahony_ki': '1/s²',
-    # [roll, pitch, yaw] in rad, or a unit quaternion [x, y, z, w]: the issue's names, kept
-    'mount_rotation': 'rad|quat',
-    'mag_rotation': 'rad|quat',
-}
-
-
 def unit_of(name: str) -> str:
-    """A parameter's unit: :data:`UNITS_BY_NAME`, else the one its name ends with (:data:`UNIT_SUFFIXES`), else
-    ``-`` (dimensionless, a flag or a choice)."""
-    if name in UNITS_BY_NAME:
-        return UNITS_BY_NAME[name]
-    return next((unit for suffix, unit in UNIT_SUFFIXES if name.endswith(suffix)), '-')
+    """A parameter's SI unit as its definition gives it (:func:`ccf_ros.settings.schema`); ``-``: none."""
+    from .settings import schema
+
+    return schema()[name].unit
 
 
 def format_value(value: Any) -> str:
-    """A default as it is written in a parameters file or ``--param``: ``true``, ``2.5``, ``[1, 0, 0]``."""
-    if isinstance(value, bool):
-        return 'true' if value else 'false'
-    if isinstance(value, float):
-        return f'{value:g}'
-    if isinstance(value, (tuple, list)):
-        return '[' + ', '.join(format_value(v) for v in value) + ']'
-    if value == '':
-        return "''"
-    return str(value)
+    """A default as it is written in a parameters file or ``--param`` (:func:`ccf_ros.settings.format_value`)."""
+    from .settings import format_value as fmt
+
+    return fmt(value)
 
 
 def params_rows(
@@ -331,19 +293,18 @@ def params_rows(
 ) -> tuple[str, list[tuple[str, str, str, str]]]:
     """A title and ``(name, default, unit, description)`` rows: every setting, or those of one filter.
 
-    Read from :func:`ccf_ros.settings.all_defaults`, :data:`ccf_ros.settings.DESCRIPTIONS` and the filter
-    registry at call time. With ``filter_name``: the selected filter's own parameters (its defaults) and the
-    settings that are not filter parameters (engine and node), which apply to every filter.
+    Read from :func:`ccf_ros.settings.schema` when called. With ``filter_name``: the selected filter's own
+    parameters (its defaults) and the settings that are not filter parameters (engine, node, imu_tools gains), which
+    apply to every filter.
     """
-    import dataclasses
+    from .core.registry import FILTERS, SELECTORS, param_fields
+    from .settings import format_value as fmt
+    from .settings import schema
 
-    from .core.registry import FILTERS, SELECTORS, all_param_names, param_fields
-    from .settings import DESCRIPTIONS, all_defaults
-
-    defaults = all_defaults()
+    entries = schema()
     if filter_name is None:
-        title = 'every parameter (filter and adapter) with its default; set with --param NAME=VALUE or --params-file'
-        chosen = dict(defaults)
+        title = 'every parameter (filter, engine, node) with its default; set with --param NAME=VALUE or --params-file'
+        chosen = {name: p.default for name, p in entries.items()}
     else:
         forms = [f for k, f in FILTERS if k == filter_name]
         if not forms:
@@ -353,22 +314,12 @@ def params_rows(
         if formulation not in forms:
             raise ParameterError(f'filter {filter_name} has no formulation {formulation!r} (choose: {", ".join(forms)})')
         fields = param_fields(FILTERS[(filter_name, formulation)][0])
-        filter_names = all_param_names()
-        chosen = {}
-        for name, value in defaults.items():
-            if name in fields:
-                f = fields[name]
-                if f.default is not dataclasses.MISSING:
-                    chosen[name] = f.default
-                elif f.default_factory is not dataclasses.MISSING:
-                    chosen[name] = f.default_factory()
-                else:
-                    chosen[name] = value
-            elif name not in filter_names:
-                chosen[name] = value
+        # The filter's own defaults (a baseline's may differ from the first filter's), then the non-filter settings.
+        chosen = {name: fields[name].default if name in fields else p.default for name, p in entries.items()
+                  if name in fields or p.group not in ('selector', 'filter')}
         title = (f'parameters of filter={filter_name} formulation={formulation}, and the engine and node settings '
                  'that apply to every filter')
-    rows = [(name, format_value(value), unit_of(name), DESCRIPTIONS.get(name, '')) for name, value in chosen.items()]
+    rows = [(name, fmt(value), entries[name].unit, entries[name].description) for name, value in chosen.items()]
     return title, rows
 
 

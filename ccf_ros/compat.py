@@ -14,6 +14,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from .core.fields import parse_bool
 from .settings import IMU_TOOLS_GAINS, all_defaults
 
 #: Parameters of imu_filter_madgwick (Jazzy) that are read-only there.
@@ -119,8 +120,10 @@ def defaults_for(profile: NodeProfile) -> dict[str, Any]:
 
 def bias_estimation_off(values: Mapping[str, Any]) -> bool:
     """True if ``values`` say ``do_bias_estimation: false`` (a bool, or as text in a parameter file)."""
-    flag = values.get('do_bias_estimation', True)
-    return flag is False or (isinstance(flag, str) and flag.strip().lower() in ('false', '0', 'no', 'off'))
+    try:
+        return not parse_bool('do_bias_estimation', values.get('do_bias_estimation', True))
+    except ValueError:
+        return False  # not a flag: refused where the settings are checked (ccf_ros.settings.coerce)
 
 
 def apply_do_bias_estimation(values: dict[str, Any], profile: NodeProfile) -> None:

@@ -29,7 +29,7 @@ from .core.quaternion import (
     to_xyzw,
 )
 from .frames import IDENTITY, Mat3, apply, is_identity, matmul, transpose
-from .settings import AdapterSettings
+from .settings import EngineSettings
 from .state_file import State, StateFileError, read_state, write_state
 
 #: A stamp this much (s) before the latest one is a clock jump, not a late sample: the filter restarts.
@@ -73,9 +73,9 @@ class Output(NamedTuple):
 class ImuEngine:
     """Magnetometer calibration and pairing + filter + output shaping for a stream of IMU/magnetometer messages."""
 
-    def __init__(self, filt: OrientationFilter, settings: AdapterSettings | None = None) -> None:
+    def __init__(self, filt: OrientationFilter, settings: EngineSettings | None = None) -> None:
         self.filter = filt
-        self.settings = settings or AdapterSettings()
+        self.settings = settings or EngineSettings()
         self.pairer = MagPairer(timeout_s=self.settings.mag_timeout_s)
         self.n_in = 0
         #: outputs produced (every IMU sample once an orientation exists)
@@ -121,7 +121,7 @@ class ImuEngine:
         if self.settings.bias_file:
             self.load_state(self.settings.bias_file)
 
-    def set_settings(self, settings: AdapterSettings) -> None:
+    def set_settings(self, settings: EngineSettings) -> None:
         """Apply new adapter settings; the filter state is kept."""
         self.settings = settings
         self.pairer.timeout_s = settings.mag_timeout_s

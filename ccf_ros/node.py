@@ -68,17 +68,13 @@ from .compat import (
 )
 from .core.base import ANSWERED_BELOW
 from .core.quaternion import from_xyzw, rpy_of
-from .core.registry import FILTERS
 from .engine import ImuEngine, Output
 from .frames import apply
 from .node_support import (
-    PER_AXIS,
     Diagnostics,
     InputStats,
-    coerce_parameter,
     diagnostics,
     imu_header,
-    parameter_range,
     raw_rpy,
 )
 from .offline.fastcdr import (
@@ -92,7 +88,7 @@ from .offline.fastcdr import (
     vector3_stamped,
 )
 from .offline.messages import fill_imu, reframe_msg, stamp_s
-from .settings import DESCRIPTIONS, build
+from .settings import build, coerce, schema
 from .sync import HOLD_S, ImuMagSync
 
 #: Depth of the output publishers (reliable, volatile: the rclpy defaults).
@@ -137,30 +133,29 @@ _IMU_TAIL = LINEAR_ACCELERATION + 96
 Held = tuple[float, bytes | Imu, int, Vec3, Vec3]
 
 
-def _descriptor(name: str, default: Any, read_only: bool) -> ParameterDescriptor:
-    d = ParameterDescriptor(description=DESCRIPTIONS.get(name, ''), read_only=read_only)
-    if name in PER_AXIS:
+def _descriptor(name: str, read_only: bool) -> ParameterDescriptor:
+    """The declaration of ``name`` from its definition (:func:`ccf_ros.settings.schema`): description, range,
+    choices; values are checked by :func:`ccf_ros.settings.coerce` in the on-set callback."""
+    p = schema()[name]
+    d = ParameterDescriptor(description=p.description, read_only=read_only)
+    if p.per_axis:
         d.dynamic_typing = True
         d.additional_constraints = 'a number or a list of 3 numbers'
-    elif isinstance(default, tuple):
+    elif isinstance(p.default, tuple):
         # Dynamic: [1, 0, 0] (integers) is as good as [1.0, 0.0, 0.0]; the node checks the values.
         d.dynamic_typing = True
         d.additional_constraints = ('[roll, pitch, yaw] (rad) or [x, y, z, w]' if name.endswith('_rotation')
-                                    else f'{len(default)} numbers')
-    elif isinstance(default, float):
+                                    else f'{len(p.default)} numbers')
+    elif isinstance(p.default, float):
         # Dynamic: rclpy refuses an integer for a double-typed parameter; the node accepts and converts it.
         d.dynamic_typing = True
-        lo, hi = parameter_range(name)
+        lo, hi = p.range or (-1e300, 1e300)
         d.floating_point_range = [FloatingPointRange(from_value=lo, to_value=hi, step=0.0)]
         d.additional_constraints = 'a number (an integer is accepted)'
-    elif isinstance(default, int) and not isinstance(default, bool):
-        d.integer_range = [IntegerRange(from_value=1, to_value=100000, step=1)]
-    elif name == 'formulation':
-        d.additional_constraints = 'one of: ' + ', '.join(sorted({f for _, f in FILTERS}))
-    elif name == 'world_frame':
-        d.additional_constraints = 'one of: enu, ned, nwu'
-    elif name == 'qos_reliability':
-        d.additional_constraints = 'one of: best_effort, reliable'
+    elif isinstance(p.default, int) and not isinstance(p.default, bool) and p.range:
+        d.integer_range = [IntegerRange(from_value=int(p.range[0]), to_value=int(p.range[1]), step=1)]
+    elif p.choices:
+        d.additional_constraints = 'one of: ' + ', '.join(p.choices)
     return d
 
 
@@ -218,10 +213,9 @@ class CcfNode(Node):
                 continue
             # Tuples (noise vectors) are declared as arrays.
             value = list(default) if isinstance(default, tuple) else default
-            self.declare_parameter(name, value, _descriptor(name, default, name in read_only))
+            self.declare_parameter(name, value, _descriptor(name, name in read_only))
         # Invalid start-up values: say which and stop, rather than run with something else.
-        self._settings = {name: coerce_parameter(name, self.get_parameter(name).value, default)
-                          for name, default in self._defaults.items()}
+        self._settings = {name: coerce(name, self.get_parameter(name).value) for name in self._defaults}
         filt, adapter = build(self._effective(self._settings), strict=False)
         self.engine = ImuEngine(filt, adapter)
         # The bias_file's warnings: those of the load (above) now, later ones as they come.
@@ -448,7 +442,7 @@ class CcfNode(Node):
         try:
             for p in params:
                 if p.name in self._defaults:
-                    merged[p.name] = coerce_parameter(p.name, p.value, self._defaults[p.name])
+                    merged[p.name] = coerce(p.name, p.value)
             build(self._effective(merged), strict=False)
         except ValueError as err:
             return SetParametersResult(successful=False, reason=str(err))
@@ -461,7 +455,7 @@ class CcfNode(Node):
         old = dict(self._settings)
         for p in params:
             if p.name in self._defaults:
-                self._settings[p.name] = coerce_parameter(p.name, p.value, self._defaults[p.name])
+                self._settings[p.name] = coerce(p.name, p.value)
         filt, adapter = build(self._effective(self._settings), strict=False)
         if type(filt) is type(self.engine.filter):
             # Same filter: new gains apply from the next sample, the orientation is kept.

@@ -13,101 +13,38 @@ from __future__ import annotations
 import math
 import struct
 from collections import deque
-from collections.abc import Iterable
 from typing import Any, NamedTuple
 
-from .core.base import per_axis
 from .core.quaternion import WORLD_FRAMES, quat_from_acc_mag_scalar, quat_mul_scalar, rpy_of
 from .engine import ImuEngine
-from .errors import ParameterError
+from .settings import coerce, schema
 from .sync import HoldStats
 
 Vec3 = tuple[float, float, float]
 
 # --- parameters -------------------------------------------------------------------------------------------------
 
+# The parameters' definitions, ranges and validation are in ccf_ros.settings (one schema); these names stay for
+# existing imports.
 #: Parameters whose value may be a number or a list of three (per axis).
-PER_AXIS = frozenset({'kp', 'ki', 'alpha', 'lcf_alpha'})
-#: Range (inclusive) of a real parameter; the node's descriptors show it, :func:`coerce_parameter` enforces it (the
-#: core validates more precisely). Not listed: :data:`DEFAULT_RANGE`.
-PARAMETER_RANGES: dict[str, tuple[float, float]] = {
-    'alpha': (0.0, 1.0),
-    'lcf_alpha': (0.0, 1.0),
-    'kp': (0.0, 1e6),
-    'ki': (0.0, 1e6),
-    'mag_norm_tol': (0.0, 10.0),
-    'mag_dip_tol_rad': (0.0, math.pi),
-    'mag_consistency_rad': (0.0, math.pi),
-    'gyro_range_rad_s': (0.0, 1000.0),
-    'constant_dt': (0.0, 10.0),
-    'orientation_stddev': (0.0, math.pi),
-    'gyro_bias_rate_hz': (0.0, 100000.0),
-    # imu_tools' own ranges: signed angles (rad) and hard-iron offsets (T) ...
-    'yaw_offset': (-2.0 * math.pi, 2.0 * math.pi),
-    'declination': (-2.0 * math.pi, 2.0 * math.pi),
-    'mag_bias_x': (-10.0, 10.0),
-    'mag_bias_y': (-10.0, 10.0),
-    'mag_bias_z': (-10.0, 10.0),
-    'gain': (0.0, 1.0),
-    'zeta': (-1.0, 1.0),
-    # ... and none for the complementary filter's gains (it accepts any value, warns and keeps its default).
-    'gain_acc': (-1e9, 1e9),
-    'gain_mag': (-1e9, 1e9),
-    'bias_alpha': (-1e9, 1e9),
-}
-#: Range of the other real parameters: positive.
+PER_AXIS = frozenset(name for name, p in schema().items() if p.per_axis)
+#: Range of a real parameter without its own.
 DEFAULT_RANGE = (0.0, 1e9)
 
 
 def parameter_range(name: str) -> tuple[float, float]:
-    """The inclusive range of the real parameter ``name``."""
-    return PARAMETER_RANGES.get(name, DEFAULT_RANGE)
+    """The inclusive range of the real parameter ``name`` (its definition's)."""
+    return schema()[name].range or DEFAULT_RANGE
 
 
-def _is_number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
-
-
-def _numbers(name: str, value: Any) -> tuple[float, ...]:
-    if isinstance(value, (str, bytes)) or not isinstance(value, Iterable):
-        raise ParameterError(f'{name} must be a list of numbers, got {value!r}')
-    items = list(value)
-    if not all(_is_number(v) for v in items):
-        raise ParameterError(f'{name} must be a list of numbers, got {items!r}')
-    return tuple(float(v) for v in items)
-
-
-def coerce_parameter(name: str, value: Any, default: Any) -> Any:
-    """``value`` of the parameter ``name`` (declared with ``default``) as the settings take it.
-
-    Real parameters are declared with dynamic typing (rclpy would refuse an integer for a double): an integer is
-    accepted and converted, anything else that is not a number is refused, as is a value outside its range. Arrays
-    of reals accept integers too; per-axis gains take a number or a list. Booleans, strings and integers are typed
-    by rclpy and pass unchanged.
+def coerce_parameter(name: str, value: Any, default: Any = None) -> Any:
+    """``value`` of the parameter ``name`` as the settings take it: :func:`ccf_ros.settings.coerce` (``default``,
+    the executable's, is not needed: the definition has the type).
 
     Raises:
-        ParameterError: not a number (or list of numbers), or out of range; the message names the parameter.
+        ParameterError: not of the parameter's type, or out of range; the message names the parameter.
     """
-    if name in PER_AXIS:
-        v = float(value) if _is_number(value) else _numbers(name, value)
-        # Checked here whichever filter is selected: a malformed value for an inactive one would otherwise be
-        # taken, and refuse a later, unrelated change (the selection of that filter).
-        try:
-            per_axis(name, v, *parameter_range(name))
-        except ValueError as err:
-            raise ParameterError(str(err)) from None
-        return v
-    if isinstance(default, tuple):
-        return _numbers(name, value)
-    if isinstance(default, float):
-        if not _is_number(value):
-            raise ParameterError(f'{name} must be a number, got {value!r}')
-        v = float(value)
-        lo, hi = parameter_range(name)
-        if not lo <= v <= hi:  # NaN too
-            raise ParameterError(f'{name} must be within [{lo:g}, {hi:g}], got {value!r}')
-        return v
-    return value
+    return coerce(name, value)
 
 
 # --- debug values and TF ------------------------------------------------------------------------------------------

@@ -1,229 +1,107 @@
-"""Every user-facing setting of ccf_ros in one place: filter parameters (core) and adapter parameters.
+"""Every user-facing setting of ccf_ros, each defined once: the schema every executable is generated from.
 
-The node, ``ccf replay --param/--params-file`` and ``config/ccf.yaml`` all use these names. No ROS import.
+A parameter is one dataclass field (:func:`ccf_ros.core.fields.param`: default, SI unit, range, description): the
+filters' in the core params dataclasses, the engine's in :class:`EngineSettings`, the node's in
+:class:`NodeSettings`, imu_tools' accepted gains in :class:`ImuToolsGains`. :func:`schema` collects them into
+:class:`Parameter` entries, from which come the node's declarations (descriptors with ranges), the validation of a
+value everywhere (:func:`coerce`: node on-set callback, ``ccf replay``, ``ccf fleet``), ``ccf params``,
+``config/ccf.yaml`` (``python -m ccf_ros.settings > config/ccf.yaml``) and the README's parameter table
+(``python -m ccf_ros.settings --markdown``); tests check both generated files are current. No ROS import.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import math
+import sys
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from .core.base import OrientationFilter
-from .core.registry import all_param_names, make_filter
-from .core.registry import defaults as filter_defaults
+from .core.base import OrientationFilter, check_params, per_axis
+from .core.fields import param, parse_bool, parse_number, parse_numbers
+from .core.registry import FILTERS, SELECTORS, make_filter, param_fields
 from .errors import ParameterError
 from .frames import Mat3, rotation_matrix
 
 _IDENTITY3 = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
-
-#: Settings of the shared engine (node and replay alike), with defaults.
-ENGINE_DEFAULTS: dict[str, Any] = {
-    'mag_timeout_s': 0.5,
-    'constant_dt': 0.0,
-    'orientation_stddev': 0.0,
-    'mag_bias_x': 0.0,
-    'mag_bias_y': 0.0,
-    'mag_bias_z': 0.0,
-    'mag_soft_iron': _IDENTITY3,
-    'yaw_offset': 0.0,
-    'declination': 0.0,
-    'remove_gravity_vector': False,
-    'stateless': False,
-    'bias_corrected_rate': False,
-    'mount_rotation': (0.0, 0.0, 0.0),
-    'mag_rotation': (0.0, 0.0, 0.0),
-    'output_frame_id': '',
-    'gyro_offset_rad_s': (0.0, 0.0, 0.0),
-    'bias_file': '',
-    'bias_file_heading': False,
-    'mag_online_calibration': False,
-    'mag_online_memory_rad': 60.0,
-}
-
-#: Settings only the node uses (replay accepts and ignores them, so one parameters file serves both).
-NODE_DEFAULTS: dict[str, Any] = {
-    'publish_debug_topics': False,
-    'gyro_bias_rate_hz': 50.0,
-    'qos_reliability': 'best_effort',
-    'qos_depth': 50,
-    'publish_tf': False,
-    'fixed_frame': 'odom',
-    'reverse_tf': False,
-    'bias_save_interval_s': 60.0,
-    'motion_hint_topic': '',
-    'motion_hint_linear_m_s': 0.01,
-    'motion_hint_angular_rad_s': 0.01,
-    'motion_hint_timeout_s': 0.5,
-}
-
-#: imu_tools gains with no ccf meaning: accepted (a YAML written for imu_tools applies unchanged) and, when set to a
-#: value other than this default, logged once by the node with the ccf parameter that plays that role.
-IMU_TOOLS_GAINS: dict[str, tuple[Any, str]] = {
-    'gain': (0.1, 'tau_acc_s and tau_mag_s (time constants, s, instead of a gradient gain)'),
-    'zeta': (0.0, 'tau_bias_s and motion_bias (the NCF learns the gyro bias)'),
-    'gain_acc': (0.01, 'tau_acc_s (inclination time constant, s)'),
-    'gain_mag': (0.01, 'tau_mag_s (heading time constant, s)'),
-    'bias_alpha': (0.01, 'rest_tau_s (bias update at rest, s)'),
-    'do_adaptive_gain': (True, 'tau_acc_lp_s (linear accelerations are always rejected by the inertial-frame low-pass)'),
-    'do_bias_estimation': (True, 'rest_bias and motion_bias; with the complementary-filter executable it also '
-                                 'sets bias_corrected_rate'),
-}
-
-#: Every non-filter setting (engine, node, accepted imu_tools gains) with its default.
-ADAPTER_DEFAULTS: dict[str, Any] = {**ENGINE_DEFAULTS, **NODE_DEFAULTS, **{k: v for k, (v, _) in IMU_TOOLS_GAINS.items()}}
-
-#: One line per setting, for config/ccf.yaml, the node's parameter descriptors and the README.
-DESCRIPTIONS: dict[str, str] = {
-    'filter': 'filter algorithm: ccf (default), or the paper\'s baselines lcf, ncf, ekf, ckf (euler) and madgwick, mahony',
-    'formulation': 'quaternion (default, any attitude) or euler (the paper\'s per-axis form, singular at +-90 deg pitch)',
-    'max_dt_s': 'gap longer than this (s) re-initialises from accelerometer/magnetometer instead of integrating',
-    'use_mag': 'use the magnetometer for heading (false: 6-D, heading drifts)',
-    'world_frame': 'world frame of the output orientation: enu (REP-103), ned or nwu',
-    'tau_acc_s': 'quaternion: LCF time constant of the inclination blend towards the filtered gravity, s',
-    'tau_mag_s': 'quaternion: LCF time constant of the heading blend towards the magnetometer, s',
-    'tau_acc_lp_s': 'quaternion: group delay of the 2nd-order gravity low-pass in the gyro-carried (almost inertial) frame, s',
-    'tau_ncf_s': 'quaternion: NCF (bias stage) proportional time constant, s',
-    'tau_bias_s': 'quaternion: NCF: the bias estimate follows the observed drift with this time constant in steady motion, s',
-    'bias_rotation_rad_s': 'quaternion: NCF: rotation rate at which its bias observations count half (gyro scale errors), rad/s',
-    'motion_bias': 'quaternion: learn the gyro bias while moving (NCF integral)',
-    'rest_bias': 'quaternion: learn the gyro bias from the gyro itself while at rest',
-    'rest_gyro_rad_s': 'quaternion: rest if the gyro stays within this of its low-pass, rad/s',
-    'rest_acc_m_s2': 'quaternion: ... and the accelerometer within this of the filtered gravity, m/s^2',
-    'rest_min_s': 'quaternion: ... for at least this long, s',
-    'rest_tau_s': 'quaternion: time constant of the rest low-pass filter and rest bias update, s',
-    'bias_max_rad_s': 'quaternion: the gyro-bias estimate is clamped to +-this per axis, rad/s',
-    'mag_norm_tol': 'quaternion: relative magnetometer-norm deviation that counts as disturbed',
-    'mag_dip_tol_rad': 'quaternion: magnetic dip deviation that counts as disturbed, rad',
-    'mag_reaccept_s': 'quaternion: a different but steady field becomes the new reference after this long, s',
-    'mag_ref_learn_s': 'quaternion: the reference field of the disturbance gate is the mean over this long after it is set, s',
-    'mag_consistency_rad': 'quaternion: a field whose world direction moves more than this (band-passed RMS) does not steer heading, rad; 0 = off',
-    'gyro_range_rad_s': 'quaternion: the gyro\'s full-scale range, rad/s (0 = unknown); samples at it are counted and the attitude recovers from the accelerometer/magnetometer fast',
-    'incl_sigma_rad': 'quaternion: reported inclination std while the accelerometer corrects it, rad',
-    'heading_sigma_rad': 'quaternion: reported heading std while the magnetometer corrects it, rad',
-    'gyro_arw_rad_sqrt_s': 'quaternion: gyro angle random walk, rad/sqrt(s); grows the reported variance without corrections',
-    'bias_sigma_init_rad_s': 'quaternion: gyro-bias uncertainty before anything is learnt, rad/s (the NCF Kalman filter starts here)',
-    'bias_sigma_rest_rad_s': 'quaternion: gyro-bias uncertainty after a rest, rad/s',
-    'bias_walk_rad_s_sqrt_s': 'quaternion: random walk of the gyro bias, (rad/s)/sqrt(s)',
-    'kp': 'euler: NCF proportional gain, 1/s (one value or [roll, pitch, yaw])',
-    'ki': 'euler: NCF integral gain, 1/s^2 (one value or [roll, pitch, yaw])',
-    'alpha': 'euler: LCF weight of the gyro path per sample, 0..1 (one value or [roll, pitch, yaw])',
-    'lcf_alpha': 'lcf: per-sample weight of the integrated gyro, 0..1 (one value or [roll, pitch, yaw])',
-    'ekf_q': 'ekf: process-noise density of [roll, pitch, yaw], rad^2/s',
-    'ekf_r': 'ekf: accelerometer/magnetometer angle variance [roll, pitch, yaw], rad^2',
-    'ckf_q': 'ckf: process-noise density of [roll, pitch, yaw error, x, y, z bias error], rad^2/s, rad^2/s^3',
-    'ckf_r': 'ckf: accelerometer/magnetometer angle variance [roll, pitch, yaw], rad^2',
-    'ckf_bias0_rad_s': 'ckf: initial gyro-bias standard deviation, rad/s',
-    'madgwick_beta': 'madgwick: gradient-descent gain, rad/s',
-    'mahony_kp': 'mahony: proportional gain, 1/s',
-    'mahony_ki': 'mahony: integral gain, 1/s^2',
-    'mag_timeout_s': 'magnetometer samples older than this (s) are not paired with an IMU sample',
-    'constant_dt': 'fixed sample period (s) instead of header stamps; 0 = use header stamps',
-    'orientation_stddev': 'fixed orientation std (rad) for the covariance; 0 = the filter\'s own estimate',
-    'mag_bias_x': 'magnetometer hard-iron offset, x, T (subtracted before everything else; ccf calibrate-mag)',
-    'mag_bias_y': 'magnetometer hard-iron offset, y, T',
-    'mag_bias_z': 'magnetometer hard-iron offset, z, T',
-    'mag_soft_iron': 'magnetometer soft-iron matrix, row-major 3x3, applied after the offset: m = S (m_raw - b)',
-    'mag_online_calibration': 'estimate the magnetometer hard-iron offset while the sensor turns (gyro-paired, a field '
-                              'fixed in the world is not followed) and subtract it once determined, after mag_bias_*',
-    'mag_online_memory_rad': 'rotation the online hard-iron estimate remembers, rad (1 to 1e6; older pairs fade by '
-                             'exp(-turn / this))',
-    'yaw_offset': 'output turned by yaw_offset - declination about world z (down in ned), rad (imu_tools semantics)',
-    'declination': 'local magnetic declination, rad (east positive); see yaw_offset',
-    'remove_gravity_vector': 'publish linear_acceleration with gravity (9.80665 m/s^2, up) removed',
-    'stateless': 'publish the orientation computed from each accelerometer (+ magnetometer) sample alone (debug)',
-    'bias_corrected_rate': 'publish angular_velocity minus the gyro-bias estimate',
-    'mount_rotation': 'rotation of the IMU frame in the output frame: [roll, pitch, yaw] rad (fixed axes X-Y-Z, as '
-                      'static_transform_publisher) or [x, y, z, w]; gyro, accelerometer, magnetometer and the output are '
-                      'turned into the output frame (doc/frames.md)',
-    'mag_rotation': 'rotation of the magnetometer frame in the IMU frame (after mag_bias/mag_soft_iron): [roll, pitch, '
-                    'yaw] rad or [x, y, z, w]',
-    'output_frame_id': 'header.frame_id of the output (imu/data, imu/gyro_bias, TF child); empty = the input\'s',
-    'gyro_offset_rad_s': 'known gyro offset [x, y, z], rad/s, IMU frame, subtracted from the rate before anything else '
-                         '(datasheet, calibration)',
-    'bias_file': 'JSON file of the learnt gyro bias (IMU frame, with its sigma and frame_id): loaded at start, written '
-                 'atomically on shutdown (and every bias_save_interval_s by the node, at the end by replay); empty = none',
-    'bias_file_heading': '6-D: also keep the heading in bias_file, so that a restart goes on from the heading it had '
-                         '(the robot must not have turned while the node was down)',
-    'publish_debug_topics': 'node: also publish imu/rpy/filtered and imu/rpy/raw (roll, pitch, yaw in rad)',
-    'gyro_bias_rate_hz': 'node: highest rate of imu/gyro_bias, Hz (the bias changes over seconds); 0 = every sample',
-    'qos_reliability': 'node: input QoS reliability, best_effort (sensor data) or reliable',
-    'qos_depth': 'node: input QoS queue depth',
-    'publish_tf': 'node: broadcast the orientation as a transform fixed_frame -> IMU frame on /tf',
-    'fixed_frame': 'node: parent frame of the published transform',
-    'reverse_tf': 'node: publish the inverse transform (IMU frame -> fixed_frame)',
-    'bias_save_interval_s': 'node: write bias_file this often, s (and on shutdown); 0 = only on shutdown',
-    'motion_hint_topic': 'node: nav_msgs/Odometry or geometry_msgs/TwistStamped topic (type found on the graph) '
-                         'saying whether the robot moves: the gyro bias is learnt at rest only when it says still; '
-                         '"" = none',
-    'motion_hint_linear_m_s': 'node: the hint says still below this speed, m/s ...',
-    'motion_hint_angular_rad_s': 'node: ... and below this turn rate, rad/s',
-    'motion_hint_timeout_s': 'node: a hint older than this (s, by stamps) no longer counts (rest from the IMU alone)',
-    **{name: f'imu_tools gain, accepted; ccf uses {role}' for name, (_, role) in IMU_TOOLS_GAINS.items()},
-}
-
-
-def all_defaults() -> dict[str, Any]:
-    """Every setting with its default: filter parameters then adapter parameters."""
-    out = filter_defaults()
-    out.update(ADAPTER_DEFAULTS)
-    return out
+_ANY = (0.0, 1e9)  # a positive real, the range of most
 
 
 @dataclass(frozen=True)
-class AdapterSettings:
-    """Engine settings shared by node and replay (see :data:`DESCRIPTIONS` for each)."""
+class EngineSettings:
+    """Settings of the shared engine (node, drop-ins, replay and fleet alike); each field's description is its
+    documentation (``ccf params``)."""
 
-    mag_timeout_s: float = 0.5
-    constant_dt: float = 0.0
-    orientation_stddev: float = 0.0
-    mag_bias: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    mag_soft_iron: tuple[float, ...] = _IDENTITY3
-    yaw_offset: float = 0.0
-    declination: float = 0.0
-    remove_gravity_vector: bool = False
-    stateless: bool = False
-    bias_corrected_rate: bool = False
-    mount_rotation: tuple[float, ...] = (0.0, 0.0, 0.0)
-    mag_rotation: tuple[float, ...] = (0.0, 0.0, 0.0)
-    output_frame_id: str = ''
-    gyro_offset_rad_s: tuple[float, ...] = (0.0, 0.0, 0.0)
-    bias_file: str = ''
-    bias_file_heading: bool = False
-    mag_online_calibration: bool = False
-    mag_online_memory_rad: float = 60.0
+    mag_timeout_s: float = param(
+        0.5, 's', 'magnetometer samples older than this (s) are not paired with an IMU sample', *_ANY, above=True)
+    constant_dt: float = param(
+        0.0, 's', 'fixed sample period (s) instead of header stamps; 0 = use header stamps', 0.0, 10.0)
+    orientation_stddev: float = param(
+        0.0, 'rad', "fixed orientation std (rad) for the covariance; 0 = the filter's own estimate", 0.0, math.pi)
+    # imu_tools' own ranges: hard-iron offsets (T) and signed angles (rad).
+    mag_bias_x: float = param(
+        0.0, 'T', 'magnetometer hard-iron offset, x, T (subtracted before everything else; ccf calibrate-mag)',
+        -10.0, 10.0)
+    mag_bias_y: float = param(0.0, 'T', 'magnetometer hard-iron offset, y, T', -10.0, 10.0)
+    mag_bias_z: float = param(0.0, 'T', 'magnetometer hard-iron offset, z, T', -10.0, 10.0)
+    mag_soft_iron: tuple[float, ...] = param(
+        _IDENTITY3, '-', 'magnetometer soft-iron matrix, row-major 3x3, applied after the offset: m = S (m_raw - b)',
+        -1e9, 1e9, what='9 finite numbers (row-major 3x3)')
+    yaw_offset: float = param(
+        0.0, 'rad', 'output turned by yaw_offset - declination about world z (down in ned), rad (imu_tools semantics)',
+        -2.0 * math.pi, 2.0 * math.pi)
+    declination: float = param(
+        0.0, 'rad', 'local magnetic declination, rad (east positive); see yaw_offset', -2.0 * math.pi, 2.0 * math.pi)
+    remove_gravity_vector: bool = param(
+        False, '-', 'publish linear_acceleration with gravity (9.80665 m/s^2, up) removed')
+    stateless: bool = param(
+        False, '-', 'publish the orientation computed from each accelerometer (+ magnetometer) sample alone (debug)')
+    bias_corrected_rate: bool = param(False, '-', 'publish angular_velocity minus the gyro-bias estimate')
+    mount_rotation: tuple[float, ...] = param(
+        (0.0, 0.0, 0.0), 'rad|quat', 'rotation of the IMU frame in the output frame: [roll, pitch, yaw] rad (fixed '
+        'axes X-Y-Z, as static_transform_publisher) or [x, y, z, w]; gyro, accelerometer, magnetometer and the output '
+        'are turned into the output frame (doc/frames.md)',
+        lengths=(3, 4), what='[roll, pitch, yaw] (rad) or a quaternion [x, y, z, w]')
+    mag_rotation: tuple[float, ...] = param(
+        (0.0, 0.0, 0.0), 'rad|quat', 'rotation of the magnetometer frame in the IMU frame (after '
+        'mag_bias/mag_soft_iron): [roll, pitch, yaw] rad or [x, y, z, w]',
+        lengths=(3, 4), what='[roll, pitch, yaw] (rad) or a quaternion [x, y, z, w]')
+    output_frame_id: str = param(
+        '', '-', "header.frame_id of the output (imu/data, imu/gyro_bias, TF child); empty = the input's")
+    gyro_offset_rad_s: tuple[float, ...] = param(
+        (0.0, 0.0, 0.0), 'rad/s', 'known gyro offset [x, y, z], rad/s, IMU frame, subtracted from the rate before '
+        'anything else (datasheet, calibration)', -1e9, 1e9, what='3 finite numbers [x, y, z] (rad/s)')
+    bias_file: str = param(
+        '', '-', 'JSON file of the learnt gyro bias (IMU frame, with its sigma and frame_id): loaded at start, '
+        'written atomically on shutdown (and every bias_save_interval_s by the node, at the end by replay); '
+        'empty = none')
+    bias_file_heading: bool = param(
+        False, '-', '6-D: also keep the heading in bias_file, so that a restart goes on from the heading it had '
+        '(the robot must not have turned while the node was down)')
+    mag_online_calibration: bool = param(
+        False, '-', 'estimate the magnetometer hard-iron offset while the sensor turns (gyro-paired, a field '
+        'fixed in the world is not followed) and subtract it once determined, after mag_bias_*')
+    mag_online_memory_rad: float = param(
+        60.0, 'rad', 'rotation the online hard-iron estimate remembers, rad (1 to 1e6; older pairs fade by '
+        'exp(-turn / this))', 1.0, 1e6)
 
     def __post_init__(self) -> None:
-        for name in ('mag_timeout_s', 'constant_dt', 'orientation_stddev', 'yaw_offset', 'declination',
-                     'mag_online_memory_rad'):
-            value = getattr(self, name)
-            if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
-                raise ValueError(f'{name} must be a finite number, got {value!r}')
-        if not self.mag_timeout_s > 0:
-            raise ValueError(f'mag_timeout_s must be > 0, got {self.mag_timeout_s!r}')
-        if not self.constant_dt >= 0:
-            raise ValueError(f'constant_dt must be >= 0, got {self.constant_dt!r}')
-        if not self.orientation_stddev >= 0:
-            raise ValueError(f'orientation_stddev must be >= 0, got {self.orientation_stddev!r}')
-        if len(self.mag_bias) != 3 or not all(math.isfinite(v) for v in self.mag_bias):
-            raise ValueError(f'mag_bias_x/y/z must be finite numbers, got {self.mag_bias!r}')
-        if len(self.mag_soft_iron) != 9 or not all(math.isfinite(v) for v in self.mag_soft_iron):
-            raise ValueError(f'mag_soft_iron must be 9 finite numbers (row-major 3x3), got {self.mag_soft_iron!r}')
-        if not 1.0 <= self.mag_online_memory_rad <= 1e6:
-            raise ValueError(f'mag_online_memory_rad must be within [1, 1e6] rad, got {self.mag_online_memory_rad!r}')
-        for name in ('remove_gravity_vector', 'stateless', 'bias_corrected_rate', 'mag_online_calibration',
-                     'bias_file_heading'):
-            if not isinstance(getattr(self, name), bool):
-                raise ValueError(f'{name} must be a bool, got {getattr(self, name)!r}')
+        check_params(self)
         rotation_matrix('mount_rotation', self.mount_rotation)
         rotation_matrix('mag_rotation', self.mag_rotation)
-        if len(self.gyro_offset_rad_s) != 3 or not all(math.isfinite(v) for v in self.gyro_offset_rad_s):
-            raise ValueError(f'gyro_offset_rad_s must be 3 finite numbers [x, y, z] (rad/s), got '
-                             f'{list(self.gyro_offset_rad_s)!r}')
-        for name in ('output_frame_id', 'bias_file'):
-            if not isinstance(getattr(self, name), str):
-                raise ValueError(f'{name} must be a string, got {getattr(self, name)!r}')
+
+    @classmethod
+    def from_values(cls, values: Mapping[str, Any]) -> EngineSettings:
+        """From flat settings (text included; missing names keep their defaults, other names are ignored)."""
+        names = {f.name for f in dataclasses.fields(cls)}
+        return cls(**{name: coerce(name, v) for name, v in values.items() if name in names})
+
+    @property
+    def mag_bias(self) -> tuple[float, float, float]:
+        """Hard-iron offset ``(x, y, z)``, T."""
+        return (self.mag_bias_x, self.mag_bias_y, self.mag_bias_z)
 
     @property
     def mount_matrix(self) -> Mat3:
@@ -241,61 +119,224 @@ class AdapterSettings:
         return self.yaw_offset - self.declination
 
 
-def _number(name: str, value: Any) -> float:
-    """``value`` as a float (ints from YAML/ROS integer parameters included), or ValueError naming ``name``."""
-    if isinstance(value, bool):
-        raise ValueError(f'{name} must be a number, got {value!r}')
+@dataclass(frozen=True)
+class NodeSettings:
+    """Settings only the node uses (replay accepts them, so that one parameters file serves both, and uses the
+    motion hint's)."""
+
+    publish_debug_topics: bool = param(
+        False, '-', 'also publish imu/rpy/filtered and imu/rpy/raw (roll, pitch, yaw in rad)')
+    gyro_bias_rate_hz: float = param(
+        50.0, 'Hz', 'highest rate of imu/gyro_bias, Hz (the bias changes over seconds); 0 = every sample',
+        0.0, 100000.0)
+    qos_reliability: str = param(
+        'best_effort', '-', 'input QoS reliability, best_effort (sensor data) or reliable',
+        choices=('best_effort', 'reliable'))
+    qos_depth: int = param(50, '-', 'input QoS queue depth', 1, 100000)
+    publish_tf: bool = param(False, '-', 'broadcast the orientation as a transform fixed_frame -> IMU frame on /tf')
+    fixed_frame: str = param('odom', '-', 'parent frame of the published transform')
+    reverse_tf: bool = param(False, '-', 'publish the inverse transform (IMU frame -> fixed_frame)')
+    bias_save_interval_s: float = param(
+        60.0, 's', 'write bias_file this often, s (and on shutdown); 0 = only on shutdown', *_ANY)
+    motion_hint_topic: str = param(
+        '', '-', 'nav_msgs/Odometry or geometry_msgs/TwistStamped topic (type found on the graph) saying whether '
+        'the robot moves: the gyro bias is learnt at rest only when it says still; "" = none')
+    motion_hint_linear_m_s: float = param(0.01, 'm/s', 'the hint says still below this speed, m/s ...', *_ANY)
+    motion_hint_angular_rad_s: float = param(0.01, 'rad/s', '... and below this turn rate, rad/s', *_ANY)
+    motion_hint_timeout_s: float = param(
+        0.5, 's', 'a hint older than this (s, by stamps) no longer counts (rest from the IMU alone)', *_ANY)
+
+    def __post_init__(self) -> None:
+        check_params(self)
+
+
+@dataclass(frozen=True)
+class ImuToolsGains:
+    """imu_tools gains with no ccf meaning: accepted (a YAML written for imu_tools applies unchanged) and, set to a
+    value other than the default, logged once by the node; each description names the ccf parameter playing that
+    role. (``do_bias_estimation`` has a meaning: :func:`ccf_ros.compat.apply_do_bias_estimation`.)"""
+
+    gain: float = param(0.1, '-', 'tau_acc_s and tau_mag_s (time constants, s, instead of a gradient gain)', 0.0, 1.0)
+    zeta: float = param(0.0, '-', 'tau_bias_s and motion_bias (the NCF learns the gyro bias)', -1.0, 1.0)
+    # No range: the complementary filter accepts any value, warns and keeps its default.
+    gain_acc: float = param(0.01, '-', 'tau_acc_s (inclination time constant, s)', -1e9, 1e9)
+    gain_mag: float = param(0.01, '-', 'tau_mag_s (heading time constant, s)', -1e9, 1e9)
+    bias_alpha: float = param(0.01, '-', 'rest_tau_s (bias update at rest, s)', -1e9, 1e9)
+    do_adaptive_gain: bool = param(
+        True, '-', 'tau_acc_lp_s (linear accelerations are always rejected by the inertial-frame low-pass)')
+    do_bias_estimation: bool = param(
+        True, '-', 'rest_bias and motion_bias; with the complementary-filter executable it also sets '
+        'bias_corrected_rate')
+
+    def __post_init__(self) -> None:
+        check_params(self)
+
+
+#: Where each group of settings applies (the filter parameters: the filters that have them).
+APPLIES_TO = {
+    'selector': 'every executable', 'engine': 'node, drop-ins, replay, fleet',
+    'node': 'node, drop-ins (replay: the motion hint)', 'imu_tools': 'node, drop-ins, replay, fleet (accepted)',
+}
+_DESCRIPTION_PREFIX = {'node': 'node: ', 'imu_tools': 'imu_tools gain, accepted; ccf uses '}
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """One setting as every executable sees it.
+
+    Attributes:
+        name, default, unit (SI; ``-`` none), description: as in ``ccf params``.
+        group: ``selector`` (filter, formulation), ``filter``, ``engine``, ``node`` or ``imu_tools``.
+        range: inclusive ``(lo, hi)`` of a number (each element of a list), or None; ``above``: ``lo`` excluded.
+        choices: allowed strings; per_axis: a number or ``[roll, pitch, yaw]``; lengths: allowed list lengths;
+            what: how a list is described in an error.
+        read_only: executables (profiles) in which it cannot change after start-up.
+        applies_to: the executables (and for a filter parameter, the filters) it applies to.
+    """
+
+    name: str
+    default: Any
+    unit: str
+    description: str
+    group: str
+    range: tuple[float, float] | None = None
+    above: bool = False
+    choices: tuple[str, ...] = ()
+    per_axis: bool = False
+    lengths: tuple[int, ...] = ()
+    what: str = ''
+    read_only: frozenset[str] = frozenset()
+    applies_to: str = ''
+
+
+def _from_field(f: dataclasses.Field[Any], group: str, prefix: str = '') -> Parameter:
+    m = f.metadata
+    return Parameter(f.name, f.default, m['unit'], prefix + m['description'], group, m['range'], m['above'],
+                     m['choices'], m['per_axis'], m['lengths'], m['what'], applies_to=APPLIES_TO.get(group, ''))
+
+
+def _users(name: str) -> list[tuple[str, str]]:
+    """The ``(filter, formulation)`` pairs whose parameters include ``name``."""
+    return [key for key, (cls, _) in FILTERS.items() if name in param_fields(cls)]
+
+
+def _filter_label(name: str) -> str:
+    """``quaternion: `` for a parameter of one formulation of the ccf, ``ekf: `` for a baseline's, ``''`` for one
+    every filter has."""
+    users = _users(name)
+    if len(users) == len(FILTERS):
+        return ''
+    ccf = [form for kind, form in users if kind == 'ccf']
+    return f'{ccf[0] if ccf else users[0][0]}: '
+
+
+def _filter_applies(name: str) -> str:
+    users = _users(name)
+    which = 'every filter' if len(users) == len(FILTERS) else ', '.join(f'{k} ({f})' for k, f in users)
+    return f'{which}; node, drop-ins, replay, fleet'
+
+
+@functools.cache
+def schema() -> dict[str, Parameter]:
+    """Every setting by name, in the order of ``config/ccf.yaml``: selectors, filter parameters (first filter that
+    has it), engine, node, imu_tools gains."""
+    from .compat import PROFILES  # the drop-ins' read-only flags (imu_tools'); compat reads this module
+
+    kinds = ', '.join(sorted({k for k, _ in FILTERS}))
+    out = {
+        'filter': Parameter('filter', SELECTORS['filter'], '-', "filter algorithm: ccf (default), or the paper's "
+                            'baselines lcf, ncf, ekf, ckf (euler) and madgwick, mahony', 'selector',
+                            choices=tuple(kinds.split(', ')), applies_to=APPLIES_TO['selector']),
+        'formulation': Parameter('formulation', SELECTORS['formulation'], '-', "quaternion (default, any attitude) "
+                                 "or euler (the paper's per-axis form, singular at +-90 deg pitch)", 'selector',
+                                 choices=tuple(sorted({f for _, f in FILTERS})), applies_to=APPLIES_TO['selector']),
+    }
+    for params_cls, _ in FILTERS.values():
+        for name, f in param_fields(params_cls).items():
+            if name not in out:
+                out[name] = dataclasses.replace(_from_field(f, 'filter', _filter_label(name)),
+                                                applies_to=_filter_applies(name))
+    for cls, group in ((EngineSettings, 'engine'), (NodeSettings, 'node'), (ImuToolsGains, 'imu_tools')):
+        for f in dataclasses.fields(cls):
+            out[f.name] = _from_field(f, group, _DESCRIPTION_PREFIX.get(group, ''))
+    for name, p in out.items():
+        ro = frozenset(exe for exe, prof in PROFILES.items() if name in prof.read_only)
+        if ro:
+            out[name] = dataclasses.replace(p, read_only=ro)
+    return out
+
+
+def names(group: str) -> list[str]:
+    """The names of one group of settings (``engine``, ``node``, ...), in schema order."""
+    return [n for n, p in schema().items() if p.group == group]
+
+
+def all_defaults() -> dict[str, Any]:
+    """Every setting with its default, in schema order."""
+    return {name: p.default for name, p in schema().items()}
+
+
+def coerce(name: str, value: Any) -> Any:
+    """``value`` of the setting ``name`` checked against its definition and converted, from whatever carries it:
+    YAML, ``--param`` text, a ROS parameter (an integer for a real parameter included). The one validation of a
+    single value, used by the node's on-set callback, replay and fleet.
+
+    Raises:
+        ParameterError: an unknown name, or a value of the wrong type or out of range; the message names both.
+    """
+    p = schema().get(name)
+    if p is None:
+        raise ParameterError(f'unknown parameter {name!r}; known: {", ".join(sorted(schema()))}')
     try:
-        return float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f'{name} must be a number, got {value!r}') from None
+        return _coerce(p, value)
+    except ParameterError:
+        raise
+    except ValueError as err:
+        raise ParameterError(str(err)) from None
 
 
-def _flag(name: str, value: Any) -> bool:
-    if isinstance(value, bool):
+def _coerce(p: Parameter, value: Any) -> Any:
+    name = p.name
+    lo, hi = p.range or (-math.inf, math.inf)
+    if isinstance(p.default, bool):
+        return parse_bool(name, value)
+    if p.per_axis:
+        # Checked whichever filter is selected: a malformed value for an inactive one would otherwise be taken,
+        # and refuse a later, unrelated change (the selection of that filter).
+        if isinstance(value, str) and not value.strip().startswith('['):
+            value = parse_number(name, value)
+        v: Any = (float(value) if isinstance(value, (int, float)) and not isinstance(value, bool)
+                  else parse_numbers(name, value, 'a number or 3 numbers (roll, pitch, yaw)'))
+        per_axis(name, v, lo, hi)
+        return v
+    if isinstance(p.default, tuple):
+        vals = parse_numbers(name, value, p.what)
+        if p.range and not all(lo <= x <= hi for x in vals):
+            raise ParameterError(f'{name} must be within {_range_text(p)} each, got {value!r}')
+        return vals
+    if isinstance(p.default, str):
+        value = '' if value is None else value  # an empty YAML value is None
+        if not isinstance(value, str):
+            raise ParameterError(f'{name} must be a string, got {value!r}')
+        if p.choices and value not in p.choices:
+            raise ParameterError(f'{name} must be one of: {", ".join(p.choices)}; got {value!r}')
         return value
-    if isinstance(value, str) and value.strip().lower() in ('true', 'false', '1', '0', 'yes', 'no', 'on', 'off'):
-        return value.strip().lower() in ('true', '1', 'yes', 'on')
-    raise ValueError(f'{name} must be true or false, got {value!r}')
+    number = parse_number(name, value)
+    if isinstance(p.default, int):
+        if number != int(number):
+            raise ParameterError(f'{name} must be an integer, got {value!r}')
+        number = int(number)
+    if not lo <= number <= hi or (p.above and number <= lo):  # NaN too
+        unit = '' if p.unit == '-' else f' {p.unit}'
+        raise ParameterError(f'{name} must be within {_range_text(p)}{unit}, got {value!r}')
+    return number
 
 
-def _numbers(name: str, value: Any, what: str) -> tuple[float, ...]:
-    """A list of numbers (``[1, 0, 0]`` as text from ``--param`` too) as floats, or ValueError naming ``name``."""
-    m = value
-    if isinstance(m, str):
-        m = [v for v in m.strip().strip('[]()').split(',') if v.strip()]
-    try:
-        return tuple(_number(name, v) for v in m)
-    except TypeError:
-        raise ValueError(f'{name} must be {what}, got {value!r}') from None
+def build(settings: Mapping[str, Any], *, strict: bool = True) -> tuple[OrientationFilter, EngineSettings]:
+    """The filter and the engine settings from a flat mapping: every value checked by :func:`coerce`.
 
-
-def adapter_settings(values: Mapping[str, Any]) -> AdapterSettings:
-    """:class:`AdapterSettings` from flat settings (missing names keep their defaults; others are ignored)."""
-    kw: dict[str, Any] = {}
-    for name in ('mag_timeout_s', 'constant_dt', 'orientation_stddev', 'yaw_offset', 'declination',
-                 'mag_online_memory_rad'):
-        if name in values:
-            kw[name] = _number(name, values[name])
-    if any(f'mag_bias_{a}' in values for a in 'xyz'):
-        kw['mag_bias'] = tuple(_number(f'mag_bias_{a}', values.get(f'mag_bias_{a}', 0.0)) for a in 'xyz')
-    for name, what in (('mag_soft_iron', '9 numbers'), ('mount_rotation', '3 or 4 numbers'),
-                       ('mag_rotation', '3 or 4 numbers'), ('gyro_offset_rad_s', '3 numbers')):
-        if name in values:
-            kw[name] = _numbers(name, values[name], what)
-    for name in ('output_frame_id', 'bias_file'):
-        if name in values:
-            v = values[name]
-            kw[name] = '' if v is None else v  # an empty YAML value is None
-    for name in ('remove_gravity_vector', 'stateless', 'bias_corrected_rate', 'mag_online_calibration',
-                 'bias_file_heading'):
-        if name in values:
-            kw[name] = _flag(name, values[name])
-    return AdapterSettings(**kw)
-
-
-def build(settings: Mapping[str, Any], *, strict: bool = True) -> tuple[OrientationFilter, AdapterSettings]:
-    """Filter and adapter settings from a flat mapping.
+    ``strict``: a filter parameter the selected filter does not use is an error (else ignored: a parameters file
+    holds every filter's). Settings of the node and imu_tools' gains are checked and not used here.
 
     Raises:
         ParameterError: an unknown, inapplicable or invalid setting (its name and value in the message).
@@ -309,21 +350,65 @@ def build(settings: Mapping[str, Any], *, strict: bool = True) -> tuple[Orientat
         raise ParameterError(str(err)) from err
 
 
-def _build(settings: Mapping[str, Any], *, strict: bool) -> tuple[OrientationFilter, AdapterSettings]:
+def _build(settings: Mapping[str, Any], *, strict: bool) -> tuple[OrientationFilter, EngineSettings]:
     filt_part: dict[str, Any] = {}
-    adapter: dict[str, Any] = {}
-    known = all_param_names()
+    engine: dict[str, Any] = {}
+    sch = schema()
     for name, value in settings.items():
         if name.startswith('qos_overrides.'):
             continue  # rclpy's QoS override parameters: the node's business (a YAML written for it replays too)
-        if name in ADAPTER_DEFAULTS:
-            adapter[name] = value
-        elif name in known:
-            filt_part[name] = value
-        else:
-            raise ValueError(f'unknown parameter {name!r}; known: {", ".join(sorted(known | set(ADAPTER_DEFAULTS)))}')
-    filt = make_filter(filt_part, strict=strict)
-    return filt, adapter_settings(adapter)
+        v = coerce(name, value)
+        group = sch[name].group
+        if group in ('selector', 'filter'):
+            filt_part[name] = v
+        elif group == 'engine':
+            engine[name] = v
+    return make_filter(filt_part, strict=strict), EngineSettings.from_values(engine)
+
+
+# --- names kept for existing imports ---------------------------------------------------------------------------
+#: Old name of :class:`EngineSettings` ("adapter" named three things; this one is the engine's settings).
+AdapterSettings = EngineSettings
+
+
+def adapter_settings(values: Mapping[str, Any]) -> EngineSettings:
+    """Old name of :meth:`EngineSettings.from_values`."""
+    return EngineSettings.from_values(values)
+
+
+def _defaults_of(cls: type[Any]) -> dict[str, Any]:
+    return {f.name: f.default for f in dataclasses.fields(cls)}
+
+
+#: Defaults of the engine's, the node's settings and of the accepted imu_tools gains (read-only views).
+ENGINE_DEFAULTS: dict[str, Any] = _defaults_of(EngineSettings)
+NODE_DEFAULTS: dict[str, Any] = _defaults_of(NodeSettings)
+#: imu_tools gain -> (its imu_tools default, the ccf parameter that plays its role).
+IMU_TOOLS_GAINS: dict[str, tuple[Any, str]] = {
+    f.name: (f.default, f.metadata['description']) for f in dataclasses.fields(ImuToolsGains)}
+#: Every setting that is not a filter parameter (engine, node, imu_tools gains) with its default.
+NON_FILTER_DEFAULTS: dict[str, Any] = {**ENGINE_DEFAULTS, **NODE_DEFAULTS, **{k: v for k, (v, _) in IMU_TOOLS_GAINS.items()}}
+ADAPTER_DEFAULTS = NON_FILTER_DEFAULTS
+
+
+def __getattr__(name: str) -> Any:
+    # DESCRIPTIONS is read from the schema when asked for (the schema needs compat, which imports this module).
+    if name == 'DESCRIPTIONS':
+        return {n: p.description for n, p in schema().items()}
+    raise AttributeError(name)
+
+
+def format_value(value: Any) -> str:
+    """A default as it is written in a parameters file or ``--param``: ``true``, ``2.5``, ``[1, 0, 0]``, ``''``."""
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, float):
+        return f'{value:g}'
+    if isinstance(value, (tuple, list)):
+        return '[' + ', '.join(format_value(v) for v in value) + ']'
+    if value == '':
+        return "''"
+    return str(value)
 
 
 def config_yaml() -> str:
@@ -339,7 +424,8 @@ def config_yaml() -> str:
         '/**:',
         '  ros__parameters:',
     ]
-    for name, value in all_defaults().items():
+    for name, p in schema().items():
+        value = p.default
         if isinstance(value, bool):
             text = 'true' if value else 'false'
         elif isinstance(value, float):
@@ -350,9 +436,58 @@ def config_yaml() -> str:
             text = '[' + ', '.join(repr(round(float(v), 10)) for v in value) + ']'
         else:
             text = str(value)
-        lines.append(f'    {name}: {text}  # {DESCRIPTIONS[name]}')
+        lines.append(f'    {name}: {text}  # {p.description}')
     return '\n'.join(lines) + '\n'
 
 
+#: The README's parameter table lies between these lines (``python -m ccf_ros.settings --markdown``).
+README_BEGIN = '<!-- parameters:begin (generated by python -m ccf_ros.settings --markdown; do not edit) -->'
+README_END = '<!-- parameters:end -->'
+
+
+def _num(x: float) -> str:
+    """A range bound as a reader writes it: 1e9, 3.14159, -10."""
+    return f'{x:.0e}'.replace('e+0', 'e') if abs(x) >= 1e4 or 0 < abs(x) < 1e-4 else f'{x:g}'
+
+
+def _range_text(p: Parameter) -> str:
+    if p.choices:
+        return ', '.join(p.choices)
+    if p.range is None:
+        return ''
+    lo, hi = p.range
+    return f'{"(" if p.above else "["}{_num(lo)}, {_num(hi)}]'
+
+
+def markdown_table() -> str:
+    """The README's parameter table, between :data:`README_BEGIN` and :data:`README_END` (both included)."""
+    lines = [README_BEGIN, '', '| name | default | unit | range | applies to | description |', '|---|---|---|---|---|---|']
+    for name, p in schema().items():
+        ro = f' (read-only in {", ".join(sorted(p.read_only))})' if p.read_only else ''
+        cells = (f'`{name}`', f'`{format_value(p.default)}`', p.unit, _range_text(p), p.applies_to + ro,
+                 p.description)
+        lines.append('| ' + ' | '.join(c.replace('|', '\\|') for c in cells) + ' |')
+    return '\n'.join([*lines, '', README_END]) + '\n'
+
+
+def readme_table_is_current(readme_text: str) -> bool | None:
+    """Whether the table between the markers in ``readme_text`` is :func:`markdown_table`'s; None: no markers."""
+    if README_BEGIN not in readme_text or README_END not in readme_text.partition(README_BEGIN)[2]:
+        return None
+    a = readme_text.index(README_BEGIN)
+    b = readme_text.index(README_END, a) + len(README_END)
+    return readme_text[a:b] + '\n' == markdown_table()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m ccf_ros.settings`` prints config/ccf.yaml; ``--markdown`` the README's table."""
+    args = sys.argv[1:] if argv is None else argv
+    if args not in ([], ['--markdown']):
+        print('usage: python -m ccf_ros.settings [--markdown]', file=sys.stderr)
+        return 2
+    print(markdown_table() if args else config_yaml(), end='')
+    return 0
+
+
 if __name__ == '__main__':
-    print(config_yaml(), end='')
+    sys.exit(main())

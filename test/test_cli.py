@@ -313,8 +313,9 @@ def test_params_lists_every_parameter_with_default_unit_and_description(capsys):
 
 def test_params_reads_the_settings_when_it_runs(monkeypatch, capsys):
     """Parameters added later (by anyone) appear without touching the command."""
-    monkeypatch.setattr(settings, 'all_defaults', lambda: {'new_rate_hz': 12.5, 'new_flag': False})
-    monkeypatch.setitem(settings.DESCRIPTIONS, 'new_rate_hz', 'a new rate')
+    new = {'new_rate_hz': settings.Parameter('new_rate_hz', 12.5, 'Hz', 'a new rate', 'node', (0.0, 1e3)),
+           'new_flag': settings.Parameter('new_flag', False, '-', '', 'engine')}
+    monkeypatch.setattr(settings, 'schema', lambda: new)
     assert main(['params']) == 0
     _, rows = table(capsys.readouterr().out)
     assert rows == {'new_rate_hz': {'DEFAULT': '12.5', 'UNIT': 'Hz', 'DESCRIPTION': 'a new rate'},
@@ -332,10 +333,20 @@ def test_unit_from_the_name_or_its_suffix(name, unit):
     assert unit_of(name) == unit
 
 
-def test_every_name_with_a_listed_unit_is_a_parameter():
-    from ccf_ros.cli import UNITS_BY_NAME
+#: A unit suffix of a name and the unit it says, longest first (``_rad_s_sqrt_s`` before ``_rad_s`` before ``_s``).
+NAME_SUFFIX_UNITS = (('_rad_s_sqrt_s', '(rad/s)/√s'), ('_rad_sqrt_s', 'rad/√s'), ('_rad_s', 'rad/s'), ('_m_s2', 'm/s²'),
+                     ('_m_s', 'm/s'), ('_rad', 'rad'), ('_hz', 'Hz'), ('_s', 's'))
 
-    assert set(UNITS_BY_NAME) <= set(settings.all_defaults())
+
+def test_a_unit_in_the_name_is_the_unit_of_the_definition():
+    """The definitions' units cannot contradict the names users read (a slip like motion_hint_linear_m_s in s)."""
+    checked = 0
+    for name, p in settings.schema().items():
+        suffix_unit = next((u for suffix, u in NAME_SUFFIX_UNITS if name.endswith(suffix)), None)
+        if suffix_unit is not None:
+            assert p.unit == suffix_unit, name
+            checked += 1
+    assert checked > 30
 
 
 def test_params_yaml_prints_config_yaml(capsys):

@@ -17,10 +17,11 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from enum import IntEnum
 from typing import NamedTuple
 
+from .fields import param as param  # re-exported: the params dataclasses define their fields with it
 from .quaternion import WORLD_FRAMES, quat_mul_scalar, rpy_of
 
 
@@ -126,27 +127,45 @@ def floats(name: str, value: object, n: int, lo: float, hi: float, *, what: str 
     return vals
 
 
+def check_params(params: object) -> None:
+    """Check every :func:`~ccf_ros.core.fields.param` field of a params dataclass against its definition (type,
+    range, choices, length); ``ValueError`` naming the field and its value."""
+    for f in fields(params):  # type: ignore[arg-type]
+        if 'unit' not in f.metadata:
+            continue
+        m, name, value = f.metadata, f.name, getattr(params, f.name)
+        lo, hi = m['range'] or (-math.inf, math.inf)
+        if isinstance(f.default, bool):
+            if not isinstance(value, bool):
+                raise ValueError(f'{name} must be a bool, got {value!r}')
+        elif m['per_axis']:
+            per_axis(name, value, lo, hi)
+        elif isinstance(f.default, tuple):
+            n = len(value) if isinstance(value, tuple) and len(value) in m['lengths'] else m['lengths'][0]
+            floats(name, value, n, lo, hi, what=m['what'])
+        elif isinstance(f.default, str):
+            if m['choices'] and value not in m['choices']:
+                raise ValueError(f'{name} must be one of {list(m["choices"])}, got {value!r}')
+            if not isinstance(value, str):
+                raise ValueError(f'{name} must be a string, got {value!r}')
+        else:
+            if m['above']:
+                check_positive(name, value)
+            check_range(name, value, lo, hi)
+
+
 @dataclass(frozen=True)
 class CommonParams:
-    """Parameters every filter shares.
+    """Parameters every filter shares (each field's description is its documentation; see :func:`param`)."""
 
-    Attributes:
-        max_dt_s: longest gap between two samples that is integrated, s; a longer gap re-initialises the
-            orientation from accelerometer/magnetometer. Default 0.5 s.
-        use_mag: use the magnetometer for heading (9-D); ``False`` gives a 6-D filter whose heading drifts.
-        world_frame: world frame of the output orientation: ``enu`` (REP-103 default), ``ned`` or ``nwu``.
-    """
-
-    max_dt_s: float = 0.5
-    use_mag: bool = True
-    world_frame: str = 'enu'
+    max_dt_s: float = param(0.5, 's', 'gap longer than this (s) re-initialises from accelerometer/magnetometer '
+                            'instead of integrating', 0.0, 1e9, above=True)
+    use_mag: bool = param(True, '-', 'use the magnetometer for heading (false: 6-D, heading drifts)')
+    world_frame: str = param('enu', '-', 'world frame of the output orientation: enu (REP-103), ned or nwu',
+                             choices=tuple(sorted(WORLD_FRAMES)))
 
     def __post_init__(self) -> None:
-        check_positive('max_dt_s', self.max_dt_s)
-        if not isinstance(self.use_mag, bool):
-            raise ValueError(f'use_mag must be a bool, got {self.use_mag!r}')
-        if self.world_frame not in WORLD_FRAMES:
-            raise ValueError(f'world_frame must be one of {sorted(WORLD_FRAMES)}, got {self.world_frame!r}')
+        check_params(self)
 
 
 class OrientationFilter(ABC):

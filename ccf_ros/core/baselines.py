@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from .base import CommonParams, OrientationFilter, check_range
+from .base import CommonParams, OrientationFilter, param
 from .quaternion import WORLD_FRAMES, quat_from_acc_mag, quat_mul, quat_mul_scalar
 
 _S = math.sqrt(0.5)
@@ -24,11 +24,7 @@ _Q_NWU_FROM_ENU = WORLD_FRAMES['nwu']
 class MadgwickParams(CommonParams):
     """Attributes: madgwick_beta: gradient-descent gain, rad/s. Default 0.12 (BROAD's best common value)."""
 
-    madgwick_beta: float = 0.12
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        check_range('madgwick_beta', self.madgwick_beta, 0.0, 100.0)
+    madgwick_beta: float = param(0.12, 'rad/s', 'gradient-descent gain, rad/s', 0.0, 100.0)
 
 
 @dataclass(frozen=True)
@@ -36,13 +32,8 @@ class MahonyParams(CommonParams):
     """Attributes: mahony_kp: proportional gain, 1/s (default 0.74); mahony_ki: integral gain, 1/s² (default
     0.0012) — BROAD's best common values."""
 
-    mahony_kp: float = 0.74
-    mahony_ki: float = 0.0012
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        check_range('mahony_kp', self.mahony_kp, 0.0, 1e4)
-        check_range('mahony_ki', self.mahony_ki, 0.0, 1e4)
+    mahony_kp: float = param(0.74, '1/s', 'proportional gain, 1/s', 0.0, 1e4)
+    mahony_ki: float = param(0.0012, '1/s²', 'integral gain, 1/s^2', 0.0, 1e4)
 
 
 def _earth_field(

@@ -76,7 +76,7 @@ from dataclasses import dataclass
 from math import atan2, cos, sin, sqrt
 from typing import TypeVar
 
-from .base import CommonParams, OrientationFilter, check_positive, check_range
+from .base import CommonParams, OrientationFilter, check_positive, check_range, param
 from .quaternion import Quat, level_quat, quat_from_acc_mag_scalar, relevel
 
 _DEG = math.pi / 180.0
@@ -192,31 +192,60 @@ class CcfParams(CommonParams):
             drift), which keeps the NCF learning while moving for ever. Default 0.01 (°/s)/√s (0.1°/s after 100 s).
     """
 
-    tau_acc_s: float = 1.0
-    tau_mag_s: float = 15.0
-    tau_acc_lp_s: float = 2.5
-    tau_ncf_s: float = 3.0
-    tau_bias_s: float = 5.0
-    bias_rotation_rad_s: float = 12.0 * _DEG
-    motion_bias: bool = True
-    rest_bias: bool = True
-    rest_gyro_rad_s: float = 2.0 * _DEG
-    rest_acc_m_s2: float = 0.5
-    rest_min_s: float = 1.5
-    rest_tau_s: float = 0.5
-    bias_max_rad_s: float = 15.0 * _DEG
-    mag_norm_tol: float = 0.05
-    mag_dip_tol_rad: float = 5.0 * _DEG
-    mag_reaccept_s: float = 20.0
-    mag_ref_learn_s: float = 5.0
-    mag_consistency_rad: float = 2.0 * _DEG
-    gyro_range_rad_s: float = 0.0
-    incl_sigma_rad: float = 0.5 * _DEG
-    heading_sigma_rad: float = 1.7 * _DEG
-    gyro_arw_rad_sqrt_s: float = 3e-4
-    bias_sigma_init_rad_s: float = 0.5 * _DEG
-    bias_sigma_rest_rad_s: float = 0.02 * _DEG
-    bias_walk_rad_s_sqrt_s: float = 0.01 * _DEG
+    tau_acc_s: float = param(
+        1.0, 's', 'LCF time constant of the inclination blend towards the filtered gravity, s', 0.0, 1e9, above=True)
+    tau_mag_s: float = param(
+        15.0, 's', 'LCF time constant of the heading blend towards the magnetometer, s', 0.0, 1e9, above=True)
+    tau_acc_lp_s: float = param(
+        2.5, 's', 'group delay of the 2nd-order gravity low-pass in the gyro-carried (almost '
+        'inertial) frame, s', 0.0, 1e9, above=True)
+    tau_ncf_s: float = param(3.0, 's', 'NCF (bias stage) proportional time constant, s', 0.0, 1e9, above=True)
+    tau_bias_s: float = param(
+        5.0, 's', 'NCF: the bias estimate follows the observed drift with this time constant in '
+        'steady motion, s', 0.0, 1e9, above=True)
+    bias_rotation_rad_s: float = param(
+        12.0 * _DEG, 'rad/s', 'NCF: rotation rate at which its bias observations count half (gyro scale '
+        'errors), rad/s', 0.0, 1e9, above=True)
+    motion_bias: bool = param(True, '-', 'learn the gyro bias while moving (NCF integral)')
+    rest_bias: bool = param(True, '-', 'learn the gyro bias from the gyro itself while at rest')
+    rest_gyro_rad_s: float = param(
+        2.0 * _DEG, 'rad/s', 'rest if the gyro stays within this of its low-pass, rad/s', 0.0, 1e9, above=True)
+    rest_acc_m_s2: float = param(
+        0.5, 'm/s²', '... and the accelerometer within this of the filtered gravity, m/s^2', 0.0, 1e9, above=True)
+    rest_min_s: float = param(1.5, 's', '... for at least this long, s', 0.0, 1e9, above=True)
+    rest_tau_s: float = param(
+        0.5, 's', 'time constant of the rest low-pass filter and rest bias update, s', 0.0, 1e9, above=True)
+    bias_max_rad_s: float = param(
+        15.0 * _DEG, 'rad/s', 'the gyro-bias estimate is clamped to +-this per axis, rad/s', 0.0, 1e9, above=True)
+    mag_norm_tol: float = param(
+        0.05, '-', 'relative magnetometer-norm deviation that counts as disturbed', 0.0, 10.0, above=True)
+    mag_dip_tol_rad: float = param(
+        5.0 * _DEG, 'rad', 'magnetic dip deviation that counts as disturbed, rad', 0.0, math.pi, above=True)
+    mag_reaccept_s: float = param(
+        20.0, 's', 'a different but steady field becomes the new reference after this long, s', 0.0, 1e9, above=True)
+    mag_ref_learn_s: float = param(
+        5.0, 's', 'the reference field of the disturbance gate is the mean over this long after it '
+        'is set, s', 0.0, 3600.0)
+    mag_consistency_rad: float = param(
+        2.0 * _DEG, 'rad', 'a field whose world direction moves more than this (band-passed RMS) does not '
+        'steer heading, rad; 0 = off', 0.0, math.pi)
+    gyro_range_rad_s: float = param(
+        0.0, 'rad/s', "the gyro's full-scale range, rad/s (0 = unknown); samples at it are counted and "
+        'the attitude recovers from the accelerometer/magnetometer fast', 0.0, 1000.0)
+    incl_sigma_rad: float = param(
+        0.5 * _DEG, 'rad', 'reported inclination std while the accelerometer corrects it, rad', 0.0, 1e9, above=True)
+    heading_sigma_rad: float = param(
+        1.7 * _DEG, 'rad', 'reported heading std while the magnetometer corrects it, rad', 0.0, 1e9, above=True)
+    gyro_arw_rad_sqrt_s: float = param(
+        3e-4, 'rad/√s', 'gyro angle random walk, rad/sqrt(s); grows the reported variance without '
+        'corrections', 0.0, 1e9, above=True)
+    bias_sigma_init_rad_s: float = param(
+        0.5 * _DEG, 'rad/s', 'gyro-bias uncertainty before anything is learnt, rad/s (the NCF Kalman filter '
+        'starts here)', 0.0, 1e9, above=True)
+    bias_sigma_rest_rad_s: float = param(
+        0.02 * _DEG, 'rad/s', 'gyro-bias uncertainty after a rest, rad/s', 0.0, 1e9, above=True)
+    bias_walk_rad_s_sqrt_s: float = param(
+        0.01 * _DEG, '(rad/s)/√s', 'random walk of the gyro bias, (rad/s)/sqrt(s)', 0.0, 1e9, above=True)
 
     def __post_init__(self) -> None:
         super().__post_init__()

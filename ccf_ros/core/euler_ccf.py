@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from .base import CommonParams, OrientationFilter, per_axis
+from .base import CommonParams, OrientationFilter, param, per_axis
 from .quaternion import quat_of_rpy
 
 _PI = math.pi
@@ -41,13 +41,10 @@ class NcfParams(CommonParams):
         ki: integral gain, 1/s². Default 0.1 (paper).
     """
 
-    kp: float | tuple[float, float, float] = 25.0
-    ki: float | tuple[float, float, float] = 0.1
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        per_axis('kp', self.kp, 0.0, 1e6)
-        per_axis('ki', self.ki, 0.0, 1e6)
+    kp: float | tuple[float, float, float] = param(
+        25.0, '1/s', 'NCF proportional gain, 1/s (one value or [roll, pitch, yaw])', 0.0, 1e6, per_axis=True)
+    ki: float | tuple[float, float, float] = param(
+        0.1, '1/s²', 'NCF integral gain, 1/s^2 (one value or [roll, pitch, yaw])', 0.0, 1e6, per_axis=True)
 
 
 @dataclass(frozen=True)
@@ -60,11 +57,9 @@ class EulerCcfParams(NcfParams):
         alpha: LCF weight of the integrated gyro path, applied per sample as in eq 14, in [0, 1]. Default 0.7.
     """
 
-    alpha: float | tuple[float, float, float] = 0.7
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        per_axis('alpha', self.alpha, 0.0, 1.0)
+    alpha: float | tuple[float, float, float] = param(
+        0.7, '-', 'LCF weight of the gyro path per sample, 0..1 (one value or [roll, pitch, yaw])', 0.0, 1.0,
+        per_axis=True)
 
 
 @dataclass(frozen=True)
@@ -76,11 +71,9 @@ class LcfParams(CommonParams):
             constant ``a dt / (1 - a)`` s. Default 0.98 (the textbook value; the paper gives none).
     """
 
-    lcf_alpha: float | tuple[float, float, float] = 0.98
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        per_axis('lcf_alpha', self.lcf_alpha, 0.0, 1.0)
+    lcf_alpha: float | tuple[float, float, float] = param(
+        0.98, '-', 'per-sample weight of the integrated gyro, 0..1 (one value or [roll, pitch, yaw])', 0.0, 1.0,
+        per_axis=True)
 
 
 @dataclass(frozen=True, slots=True)

@@ -19,7 +19,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from operator import mul as _mul
 
-from .base import CommonParams, OrientationFilter, check_range, floats
+from .base import CommonParams, OrientationFilter, floats, param
 from .euler_ccf import acc_mag_euler, wrap_euler
 from .quaternion import quat_of_rpy
 
@@ -38,13 +38,10 @@ class EkfParams(CommonParams):
             (0.1, 0.001, 0.8).
     """
 
-    ekf_q: tuple[float, float, float] = (5.0, 0.05, 10.0)
-    ekf_r: tuple[float, float, float] = (0.1, 0.001, 0.8)
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        floats('ekf_q', self.ekf_q, 3, 0.0, 1e9)
-        floats('ekf_r', self.ekf_r, 3, 1e-300, 1e9)
+    ekf_q: tuple[float, float, float] = param(
+        (5.0, 0.05, 10.0), 'rad²/s', 'process-noise density of [roll, pitch, yaw], rad^2/s', 0.0, 1e9)
+    ekf_r: tuple[float, float, float] = param(
+        (0.1, 0.001, 0.8), 'rad²', 'accelerometer/magnetometer angle variance [roll, pitch, yaw], rad^2', 1e-300, 1e9)
 
 
 @dataclass(frozen=True)
@@ -59,15 +56,13 @@ class CkfParams(CommonParams):
         ckf_bias0_rad_s: initial standard deviation of the gyro bias, rad/s. Default 2°/s (not in the paper).
     """
 
-    ckf_q: tuple[float, float, float, float, float, float] = (60.0, 5.0, 10.0, 0.0, 0.0, 0.0)
-    ckf_r: tuple[float, float, float] = (0.1, 0.01, 0.8)
-    ckf_bias0_rad_s: float = 2.0 * math.pi / 180.0
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        floats('ckf_q', self.ckf_q, 6, 0.0, 1e9)
-        floats('ckf_r', self.ckf_r, 3, 1e-300, 1e9)
-        check_range('ckf_bias0_rad_s', self.ckf_bias0_rad_s, 0.0, 1.0)
+    ckf_q: tuple[float, float, float, float, float, float] = param(
+        (60.0, 5.0, 10.0, 0.0, 0.0, 0.0), 'rad²/s, rad²/s³', 'process-noise density of [roll, pitch, yaw error, x, '
+        'y, z bias error], rad^2/s, rad^2/s^3', 0.0, 1e9)
+    ckf_r: tuple[float, float, float] = param(
+        (0.1, 0.01, 0.8), 'rad²', 'accelerometer/magnetometer angle variance [roll, pitch, yaw], rad^2', 1e-300, 1e9)
+    ckf_bias0_rad_s: float = param(
+        2.0 * math.pi / 180.0, 'rad/s', 'initial gyro-bias standard deviation, rad/s', 0.0, 1.0)
 
 
 @dataclass(frozen=True, slots=True)

@@ -10,6 +10,7 @@ from .base import CommonParams, OrientationFilter
 from .baselines import Madgwick, MadgwickParams, Mahony, MahonyParams
 from .ccf import CcfParams, QuaternionCcf
 from .euler_ccf import EulerCcf, EulerCcfParams, EulerNcf, Lcf, LcfParams, NcfParams
+from .fields import parse_bool, parse_number, parse_numbers
 from .kalman import Ckf, CkfParams, Ekf, EkfParams
 
 #: (filter, formulation) -> (params class, filter class)
@@ -43,38 +44,21 @@ def all_param_names() -> set[str]:
 
 
 def _coerce(name: str, value: Any, default: Any) -> Any:
-    """Convert ``value`` to the type of ``default`` (from YAML/CLI strings or ROS parameter types)."""
+    """Convert ``value`` to the type of ``default`` (from YAML/CLI strings or ROS parameter types); the params
+    dataclass then checks it against its definition."""
     if isinstance(default, bool):
-        if isinstance(value, str):
-            low = value.strip().lower()
-            if low in ('true', '1', 'yes', 'on'):
-                return True
-            if low in ('false', '0', 'no', 'off'):
-                return False
-            raise ValueError(f'{name} must be true or false, got {value!r}')
-        return value
+        return parse_bool(name, value) if isinstance(value, str) else value
     if isinstance(default, tuple):
-        if isinstance(value, str):
-            value = value.strip().strip('[]()').split(',')
-        try:
-            # lists, tuples, and the array.array rclpy returns for double-array parameters
-            return tuple(float(v) for v in value)
-        except (TypeError, ValueError):
-            raise ValueError(f'{name} must be {len(default)} numbers, got {value!r}') from None
+        # lists, tuples, text, and the array.array rclpy returns for double-array parameters
+        return parse_numbers(name, value, f'{len(default)} numbers')
     if isinstance(default, (int, float)):
         if isinstance(value, str):
             text = value.strip()
-            if text.startswith('['):
-                return tuple(_coerce(name, v, 0.0) for v in text.strip('[]').split(',') if v.strip())
-            try:
-                return float(text)
-            except ValueError:
-                raise ValueError(f'{name} must be a number, got {value!r}') from None
+            return parse_numbers(name, text) if text.startswith('[') else parse_number(name, text)
         if isinstance(value, (list, tuple)):
             return tuple(float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else v for v in value)
         if isinstance(value, int) and not isinstance(value, bool):
             return float(value)
-        return value
     return value
 
 
