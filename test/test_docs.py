@@ -86,5 +86,5 @@ def test_readme_test_command_is_what_ci_runs():
 
 def test_readme_keeps_the_generated_parameter_table_markers():
     readme = (ROOT / 'README.md').read_text(encoding='utf-8')
-    begin, end = readme.find('<!-- parameters:begin -->'), readme.find('<!-- parameters:end -->')
+    begin, end = readme.find('<!-- parameters:begin'), readme.find('<!-- parameters:end -->')
     assert 0 < begin < end and '`tau_acc_s`' in readme[begin:end] and '|---|' in readme[begin:end]
