@@ -13,7 +13,7 @@ Cases (the offset is (30, -12, 8) µT, as a motor or a magnet near the sensor gi
    is det S = 1, so the true ``W^-1`` is compared at that scale). Its heading is printed beside the clean bag's
    heading after the same kind of calibration (``--model ellipsoid`` on the clean bag): BROAD's magnetometer is
    already calibrated, and an ellipsoid fitted to it absorbs the lab field's non-uniformity, which costs heading
-   (see ccf_ros/offline/magcal.py) -- the yardstick of a soft-iron calibration on this data.
+   (see ccf_ros/magcal/ellipsoid.py) -- the yardstick of a soft-iron calibration on this data.
 
 Usage: python benchmarks/calibrate_mag.py [--trial NAME | --bag BAG]
 (offline only: no rclpy, nothing on the network; ~30 s)

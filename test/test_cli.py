@@ -268,14 +268,14 @@ def test_ctrl_c_exits_130_and_leaves_no_half_bag(sim_bag, tmp_path):
 
 # --- calibrate-mag through ccf -------------------------------------------------------------------------------
 def test_calibrate_mag_is_a_ccf_subcommand_and_its_errors_are_one_line(sim_bag, tmp_path, monkeypatch, capsys):
-    from ccf_ros.offline import magcal
+    from ccf_ros.offline import calibrate_mag
 
     assert main(['calibrate-mag', str(sim_bag), '--mag-topic', '/imu/data_raw', '-o', str(tmp_path / 'a.yaml')]) == 2
     assert 'expected sensor_msgs/msg/MagneticField' in one_line(capsys.readouterr().err)
     assert main(['calibrate-mag', str(sim_bag), '--field-norm-ut', '-5', '-o', str(tmp_path / 'a.yaml')]) == 2
     assert '--field-norm-ut' in one_line(capsys.readouterr().err)
     # Data that cannot give a calibration (a sensor at rest): CalibrationError, one line.
-    monkeypatch.setattr(magcal, 'read_mag', lambda bag, topic: np.tile([20e-6, 0.0, -40e-6], (500, 1))
+    monkeypatch.setattr(calibrate_mag, 'read_mag', lambda bag, topic: np.tile([20e-6, 0.0, -40e-6], (500, 1))
                         + 1e-7 * np.random.default_rng(0).standard_normal((500, 3)))
     assert main(['calibrate-mag', str(sim_bag), '-o', str(tmp_path / 'b.yaml')]) == 2
     line = one_line(capsys.readouterr().err)

@@ -25,10 +25,10 @@ def test_ruff_passes_with_the_project_rules():
     assert r.returncode == 0, r.stdout + r.stderr
 
 
-def test_mypy_passes_and_is_strict_on_the_core_and_engine():
+def test_mypy_passes_and_is_strict_on_the_core_engine_and_magcal():
     mypy = _tool('mypy')
     r = subprocess.run([mypy, 'ccf_ros'], cwd=ROOT, capture_output=True, text=True)
     assert r.returncode == 0, r.stdout + r.stderr
-    r = subprocess.run([mypy, '--strict', 'ccf_ros/core', 'ccf_ros/engine.py'], cwd=ROOT, capture_output=True,
-                       text=True)
+    r = subprocess.run([mypy, '--strict', 'ccf_ros/core', 'ccf_ros/engine.py', 'ccf_ros/magcal'], cwd=ROOT,
+                       capture_output=True, text=True)
     assert r.returncode == 0, r.stdout + r.stderr

@@ -17,7 +17,7 @@ from conftest import TRIAL, need_shared, with_mag_distortion
 
 from ccf_ros.core.quaternion import quat_conj, quat_from_rotvec, quat_mul, quat_rotate
 from ccf_ros.errors import BagError, CcfError, ParameterError
-from ccf_ros.offline import magcal
+from ccf_ros.offline import calibrate_mag, magcal
 from ccf_ros.offline.magcal import CalibrationError, MagCalibration, add_parser, coverage, fit, params_yaml, read_mag
 from ccf_ros.offline.params_file import load_params_file
 from ccf_ros.offline.simulate import MAG_WORLD, SimData, generate, write_bag
@@ -318,7 +318,7 @@ def test_calibrate_mag_refuses_to_overwrite(distorted_bag, tmp_path, capsys):
 
 
 def test_calibrate_mag_refuses_low_coverage_unless_forced(monkeypatch, tmp_path, capsys):
-    monkeypatch.setattr(magcal, 'read_mag', lambda bag, topic: distort(one_axis_motion(10.0), W, seed=13))
+    monkeypatch.setattr(calibrate_mag, 'read_mag', lambda bag, topic: distort(one_axis_motion(10.0), W, seed=13))
     args = cli(['unused.bag', '-o', str(tmp_path / 'cal.yaml')])
     with pytest.raises(CalibrationError, match=r'rotate the sensor through more orientations.*--force'):
         args.func(args)
