@@ -401,7 +401,7 @@ def _add_filter_options(p: argparse.ArgumentParser) -> None:
 def build_parser() -> argparse.ArgumentParser:
     from . import __version__
     from .core.registry import FILTERS
-    from .offline import magcal
+    from .offline import calibrate_mag as magcal
     from .offline.bagio import STORAGES
 
     p = argparse.ArgumentParser(prog='ccf', description=__doc__, formatter_class=HelpFormatter)
