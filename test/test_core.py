@@ -307,7 +307,7 @@ def test_a_drive_off_is_not_learnt_as_bias():
     accelerometer tilts by 5.8° while the gyro says no tilt. The NCF does not use observations beyond 3 sigma of what
     the bias uncertainty and the accelerometer's own error explain (measured 0.13 °/s of false bias; with the gate
     off 0.33)."""
-    import ccf_ros.core.ccf as ccf_module
+    import ccf_ros.core.ccf.bias as ccf_module
 
     rate = 200.0
     t = np.arange(int(60 * rate)) / rate
