@@ -22,7 +22,7 @@ CORE = Path(__file__).resolve().parents[1] / 'ccf_ros' / 'core'
 
 def test_core_imports_only_numpy_and_stdlib():
     allowed = set(sys.stdlib_module_names) | {'numpy'}
-    for path in CORE.glob('*.py'):
+    for path in CORE.rglob('*.py'):
         for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, ast.Import):
                 names = [a.name for a in node.names]
@@ -31,7 +31,7 @@ def test_core_imports_only_numpy_and_stdlib():
             else:
                 continue
             for name in names:
-                assert name.split('.')[0] in allowed, f'{path.name} imports {name}'
+                assert name.split('.')[0] in allowed, f'{path.relative_to(CORE)} imports {name}'
     code = 'import sys, ccf_ros.core; sys.exit(1 if any(m.startswith(("rclpy", "rosbags")) for m in sys.modules) else 0)'
     assert subprocess.run([sys.executable, '-c', code]).returncode == 0
 

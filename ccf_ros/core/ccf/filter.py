@@ -545,6 +545,11 @@ class QuaternionCcf(MagGate):
         return e2 < _REST_TOL2 + 9.0 * (p00 + p11 + p22) or self._rest_s >= REST_RELEARN_S
 
     @property
+    def state(self) -> CcfState:
+        """The per-sample state, named (a copy; for inspection and tests, not the hot path)."""
+        return CcfState._make(self._x)
+
+    @property
     def gyro_bias(self) -> tuple[float, float, float]:
         """Gyroscope bias estimate, rad/s, body frame."""
         b = self._x
