@@ -8,7 +8,8 @@ clipping gyro, set_heading / set_gyro_bias / set_params / magnetometer_changed /
 (quaternion, NCF quaternion, bias, its sigma, variances, status, rest and disturbance flags, clipped count) must match
 bit for bit. Then the core ``update()`` cost per sample on a BROAD trial, before and after interleaved in one run.
 
-Usage: python benchmarks/core_identity.py [--before REV] [--shared DIR] [--no-speed] [--quick]
+Usage: python benchmarks/core_identity.py [--before REV] [--shared DIR] [--no-speed] [--no-identity] [--quick]
+       [--reps N]
 """
 
 from __future__ import annotations
@@ -40,13 +41,13 @@ PARAMS: dict[str, dict[str, Any]] = {
 }
 
 
-def load_before(rev: str) -> ModuleType:
-    """The single-module ``ccf_ros/core/ccf.py`` of git revision ``rev``, as module ``ccf_ros.core._ccf_before``."""
+def load_before(rev: str, name: str = '_ccf_before') -> ModuleType:
+    """The single-module ``ccf_ros/core/ccf.py`` of git revision ``rev``, as module ``ccf_ros.core.NAME``."""
     src = subprocess.run(['git', '-C', str(ROOT), 'show', f'{rev}:ccf_ros/core/ccf.py'], check=True,
                          capture_output=True, text=True).stdout
-    path = Path(tempfile.mkdtemp()) / '_ccf_before.py'
+    path = Path(tempfile.mkdtemp()) / f'{name}.py'
     path.write_text(src)
-    spec = importlib.util.spec_from_file_location('ccf_ros.core._ccf_before', path)
+    spec = importlib.util.spec_from_file_location(f'ccf_ros.core.{name}', path)
     assert spec is not None and spec.loader is not None
     mod = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = mod
@@ -138,10 +139,12 @@ def jobs(rev: str, shared: Path, quick: bool) -> list[Any]:
     return out
 
 
-def speed(rev: str, shared: Path) -> None:
+def speed(rev: str, shared: Path, reps: int) -> None:
     """Core update() per sample (9-D, defaults) on 20000 samples of BROAD trial 07 (its first 30 s rest) or a
-    simulation, before and after interleaved, best of 7 each."""
+    simulation: before, after and a second copy of before (the A/A ratio shows what the machine's noise alone gives)
+    interleaved, best of ``reps`` each."""
     before = load_before(rev)
+    before2 = load_before(rev, '_ccf_before2')
     trial = shared / '07_undisturbed_fast_rotation_B'
     if trial.is_dir():
         imu = read_imu_arrays(trial)
@@ -158,12 +161,15 @@ def speed(rev: str, shared: Path) -> None:
             u(t[i], g[i], a[i], m[i])
         return (time.perf_counter() - t0) / n * 1e6
 
-    tb, ta = [], []
-    for _ in range(7):
+    tb, ta, tb2 = [], [], []
+    for _ in range(reps):
         tb.append(loop(before))
         ta.append(loop(after))
-    print(f'core update() per sample: before {min(tb):.3f} us, after {min(ta):.3f} us (best of 7, interleaved); '
-          f'after / before = {min(ta) / min(tb):.3f}, after - before = {min(ta) - min(tb):+.3f} us')
+        tb2.append(loop(before2))
+    b, a, b2 = min(tb), min(ta), min(tb2)
+    print(f'core update() per sample (best of {reps}, interleaved): before {b:.3f} us, after {a:.3f} us, '
+          f'before again {b2:.3f} us')
+    print(f'after / before = {a / b:.3f} ({a - b:+.3f} us);  A/A: before again / before = {b2 / b:.3f}')
 
 
 def main() -> None:
@@ -173,6 +179,7 @@ def main() -> None:
     ap.add_argument('--no-speed', action='store_true')
     ap.add_argument('--no-identity', action='store_true')
     ap.add_argument('--quick', action='store_true', help='one BROAD trial only')
+    ap.add_argument('--reps', type=int, default=15, help='speed: repetitions of each (default 15)')
     args = ap.parse_args()
     if not args.no_identity:
         t0 = time.time()
@@ -185,7 +192,7 @@ def main() -> None:
         print(f'{len(results)} cases, {total} samples: {"all bit-identical" if not bad else f"{bad} cases differ"} '
               f'({time.time() - t0:.0f} s)')
     if not args.no_speed:
-        speed(args.before, args.shared)
+        speed(args.before, args.shared, args.reps)
     if not args.no_identity and bad:
         sys.exit(1)
 

@@ -8,7 +8,8 @@ Per sample (:meth:`QuaternionCcf._step`, in this order):
 1. **Attitude and errors.** The body->world rows of the LCF attitude; the LCF tilt error towards the filtered
    gravity ``g_lp``; the NCF's (its attitude is ``exp(dn) ⊗ q``).
 2. **Magnetometer gate and heading** (:mod:`.mag_gate`): a field whose norm, dip or world direction departs from the
-   reference is ignored for heading; an accepted one turns the LCF (and the NCF) about world up only.
+   reference is ignored for heading; an accepted one turns the LCF (and the NCF) about world up only. The reported
+   variances grow while a correction is missing.
 3. **Bias** (:mod:`.bias`): once the block of samples spans ``BIAS_UPDATE_PERIOD_S``, a Kalman update of the bias
    from the NCF's tilt and heading errors; at rest, the low-passed gyro pulls the bias; clamped to ±bias_max_rad_s.
 4. **LCF output**: ``q`` integrates the bias-corrected rate plus the blend corrections (``tau_acc_s``,

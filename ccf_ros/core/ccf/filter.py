@@ -198,6 +198,10 @@ class QuaternionCcf(MagGate):
         mz: float,
         mag_n2: float,
     ) -> None:
+        """One sample, in the stages of the package docstring (numbered below). One function on purpose: a Python
+        call costs 50-100 ns and the whole update ~10 µs, so a helper per stage would cost more than this split's
+        budget of 5 %; only rare paths (start-up, clipping, rejected magnetometer samples, rest bookkeeping) and the
+        per-block updates (bias, field consistency) are calls."""
         c = self._coef
         if not c.dt_lo <= dt <= c.dt_hi:
             c = self._coef = self._coefficients(dt)
@@ -208,6 +212,7 @@ class QuaternionCcf(MagGate):
         # CcfState's fields, in its order (a plain tuple: see CcfState).
         (fx, fy, fz, fdx, fdy, fdz, dnx, dny, dnz, bx, by, bz, blk_t, blk_n, h_sum, h_n,
          we, wn, wu, w_n, scx, scy, scz) = self._x
+        # -- 1. Attitude and errors.
         # Rows of the body->world rotation matrix: world east (r0), north (r1) and up (v) in body coordinates.
         # (Twice the products: x2 = 2 qx etc. saves the factor 2 of every matrix element.)
         x2, y2, z2 = qx + qx, qy + qy, qz + qz
@@ -244,6 +249,7 @@ class QuaternionCcf(MagGate):
         nx = ex - dnx * r0x - dny * r1x
         ny = ey - dnx * r0y - dny * r1y
         nz = ez - dnx * r0z - dny * r1z
+        # -- 2. Magnetometer gate and heading; the drift variances of what is not corrected.
         hn = kd = kdn = 0.0
         if mag_n2:
             # The sample is a mean over the step, like the accelerometer's: the field in the frame of mid-interval.
@@ -322,6 +328,7 @@ class QuaternionCcf(MagGate):
                 self._var_incl = vi * c.keep_incl if vi > 1e-14 else 0.0
         else:
             self._var_incl = _drift(self._var_incl, c.sigma_init * sqrt(self._kf.u) * dt, c.var_arw)
+        # -- 3. Bias: the NCF integral, the rest, the clamp.
         # NCF integral: a Kalman update of the bias once the block of samples spans BIAS_UPDATE_PERIOD_S.
         blk_t += dt
         blk_n += 1
@@ -412,6 +419,7 @@ class QuaternionCcf(MagGate):
             bx = max(-m, min(m, bx))
             by = max(-m, min(m, by))
             bz = max(-m, min(m, bz))
+        # -- 4. LCF output.
         # LCF: integrate the bias-corrected rate plus the blend correction: q <- q ⊗ exp(h).
         rx = (gx - bx) * dt
         ry = (gy - by) * dt
@@ -451,6 +459,7 @@ class QuaternionCcf(MagGate):
             qw * hy - qx * hz + qy * hw + qz * hx,
             qw * hz + qx * hy - qy * hx + qz * hw,
         )
+        # -- 5. Gravity low-pass.
         # g_lp and its rate into the new body frame, v' = R(p)^T v = v - 2 cw (p x v) + 2 p x (p x v).
         tx = 2.0 * (fy * pz - fz * py)
         ty = 2.0 * (fz * px - fx * pz)
@@ -486,6 +495,7 @@ class QuaternionCcf(MagGate):
                 fdx = p21 * ax + p22 * fdx
                 fdy = p21 * ay + p22 * fdy
                 fdz = p21 * az + p22 * fdz
+        # -- 6. NCF offset.
         # NCF offset (world frame, unchanged by the common gyro step): dn += R (c_ncf - c_lcf); its vertical part is
         # the NCF's own heading (moved by the magnetometer only).
         k = c.k_ncf
