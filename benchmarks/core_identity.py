@@ -156,20 +156,60 @@ def speed(rev: str, shared: Path, reps: int) -> None:
 
     def loop(mod: ModuleType) -> float:
         u = mod.QuaternionCcf().update
-        t0 = time.perf_counter()
+        # CPU time of this process: time spent descheduled by the other processes on the machine does not count.
+        t0 = time.process_time()
         for i in range(n):
             u(t[i], g[i], a[i], m[i])
-        return (time.perf_counter() - t0) / n * 1e6
+        return (time.process_time() - t0) / n * 1e6
 
-    tb, ta, tb2 = [], [], []
-    for _ in range(reps):
-        tb.append(loop(before))
-        ta.append(loop(after))
-        tb2.append(loop(before2))
-    b, a, b2 = min(tb), min(ta), min(tb2)
+    times: dict[str, list[float]] = {'before': [], 'after': [], 'before2': []}
+    mods = {'before': before, 'after': after, 'before2': before2}
+    order = list(mods)
+    for r in range(reps):
+        for k in order[r % 3:] + order[:r % 3]:  # rotated, so that none always runs first or after another
+            times[k].append(loop(mods[k]))
+    b, a, b2 = (min(times[k]) for k in order)
     print(f'core update() per sample (best of {reps}, interleaved): before {b:.3f} us, after {a:.3f} us, '
           f'before again {b2:.3f} us')
     print(f'after / before = {a / b:.3f} ({a - b:+.3f} us);  A/A: before again / before = {b2 / b:.3f}')
+
+
+def opcodes(rev: str, shared: Path) -> None:
+    """Bytecodes executed per sample (sys.settrace), before and after: a count the machine's load does not blur. On
+    3000 samples of BROAD trial 07 (or a simulation) after its first 12000, at 286 Hz and every 12th sample (24 Hz:
+    a bias update every sample)."""
+    before = load_before(rev)
+    trial = shared / '07_undisturbed_fast_rotation_B'
+    if trial.is_dir():
+        imu = read_imu_arrays(trial)
+        data = (imu.t_s, imu.gyr, imu.acc, imu.mag)
+    else:
+        d = generate(70.0, 286.0, seed=4)
+        data = (d.t_s, d.gyr, d.acc, d.mag)
+
+    def count(mod: ModuleType, step: int) -> tuple[float, float]:
+        t, g, a, m = (x[::step].tolist() for x in data)
+        n0, n = 12000 // step, 3000 // step
+        f = mod.QuaternionCcf()
+        for i in range(n0):
+            f.update(t[i], g[i], a[i], m[i])
+        c = [0, 0]
+
+        def trace(frame: Any, event: str, arg: Any) -> Any:
+            frame.f_trace_opcodes = True
+            c[0 if event == 'opcode' else 1] += event in ('opcode', 'call')
+            return trace
+
+        sys.settrace(trace)
+        for i in range(n0, n0 + n):
+            f.update(t[i], g[i], a[i], m[i])
+        sys.settrace(None)
+        return c[0] / n, c[1] / n
+
+    for step in (1, 12):
+        (ob, cb), (oa, ca) = count(before, step), count(after, step)
+        print(f'{286 / step:.0f} Hz: bytecodes per sample before {ob:.1f}, after {oa:.1f} ({oa / ob - 1:+.2%}); '
+              f'Python calls per sample before {cb:.2f}, after {ca:.2f}')
 
 
 def main() -> None:
@@ -192,6 +232,7 @@ def main() -> None:
         print(f'{len(results)} cases, {total} samples: {"all bit-identical" if not bad else f"{bad} cases differ"} '
               f'({time.time() - t0:.0f} s)')
     if not args.no_speed:
+        opcodes(args.before, args.shared)
         speed(args.before, args.shared, args.reps)
     if not args.no_identity and bad:
         sys.exit(1)

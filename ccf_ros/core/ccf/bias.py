@@ -41,17 +41,19 @@ class BiasKalman:
         self,
         c: _BlockCoefficients,
         n: float,
-        b: Vec3,
+        bx: float, by: float, bz: float,
         axes: Axes,
-        tilt_err: Vec3,
+        nx: float, ny: float, nz: float,
         heading: Heading | None,
         w2: float,
         learn: bool,
         at_rest: bool,
     ) -> Vec3:
-        """The bias after a block of ``n`` samples (``c``: the block span's constants): returns it (rad/s, body).
+        """The bias ``bx, by, bz`` (rad/s, body) after a block of ``n`` samples (``c``: the block span's constants).
 
-        Observations: the NCF's tilt error (rad, body; ``tilt_err``) seen in the world frame (east, north) and, with a
+        The arguments are the filter's step locals, the bias and the tilt error flat: a tuple per group costs ~0.1 µs
+        to build and unpack, per block (per sample at 25 Hz and below). Observations: the NCF's tilt error (rad,
+        body; ``nx, ny, nz``) seen in the world frame (east, north) and, with a
         usable magnetometer, its heading error (``heading``: the mean of the block's samples that qualified; a
         magnetometer sample's heading is noisy, the tilt error is low-passed), times ``1/tau_ncf_s``: the rate
         (rad/s) at which the gyro's attitude drifts from gravity and north. A bias error ``db`` (body) shows there as
@@ -61,9 +63,7 @@ class BiasKalman:
         update, one scalar row at a time. ``w2``: the squared gyro rate, rad²/s². ``learn``: use the observations
         (not during start-up, at rest or without an accelerometer); ``at_rest``: the covariance relaxes to the rest's.
         """
-        bx, by, bz = b
         r0x, r0y, r0z, r1x, r1y, r1z, vx, vy, vz = axes
-        nx, ny, nz = tilt_err
         rb0 = r0x * bx + r0y * by + r0z * bz
         rb1 = r1x * bx + r1y * by + r1z * bz
         rbv = vx * bx + vy * by + vz * bz

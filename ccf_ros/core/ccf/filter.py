@@ -341,7 +341,7 @@ class QuaternionCcf(MagGate):
             if not cb.t_lo <= blk_t <= cb.t_hi:
                 cb = self._bcoef = self._block_coefficients(blk_t)
             bx, by, bz = self._kf.update(
-                cb, blk_n, (bx, by, bz), (r0x, r0y, r0z, r1x, r1y, r1z, vx, vy, vz), (nx, ny, nz),
+                cb, blk_n, bx, by, bz, (r0x, r0y, r0z, r1x, r1y, r1z, vx, vy, vz), nx, ny, nz,
                 (h_sum, h_n, self._mag_ref[1], self._mag_weight) if h_n else None,
                 gx * gx + gy * gy + gz * gz,
                 # Not during the start-up (ni): the errors then are the initial attitude's, not the bias's; not at
@@ -399,7 +399,7 @@ class QuaternionCcf(MagGate):
                     rest_s = self._rest_s = self._rest_s + dt + 1e-12
                     if rest_s >= c.rest_min_s and self._rest_agrees(glx - bx, gly - by, glz - bz):
                         # At rest the low-passed gyro *is* the bias: pull the estimate there (its covariance relaxes
-                        # to bias_sigma_rest² in _ncf_update).
+                        # to bias_sigma_rest² in BiasKalman.update).
                         self.at_rest = True
                         bx += k * (glx - bx)
                         by += k * (gly - by)

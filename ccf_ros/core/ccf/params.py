@@ -17,7 +17,7 @@ GRAVITY_M_S2 = 9.80665
 #: matrix arithmetic.
 BIAS_UPDATE_PERIOD_S = 0.04
 #: The field's world direction (through the attitude) is band-passed between these time constants, s, to tell a
-#: field that stays put from one that changes as the sensor moves (see QuaternionCcf._mag_consistency): the first
+#: field that stays put from one that changes as the sensor moves (see MagGate._mag_consistency): the first
 #: averages the magnetometer's noise and the wobble its lag gives during hand motion (0.5 Hz and up), the second is
 #: the time over which a robot or a hand carries the sensor across a field's structure.
 MAG_BAND_S = (1.0, 8.0)
