@@ -1,0 +1,239 @@
+"""The magnetometer disturbance gate of :class:`~ccf_ros.core.ccf.QuaternionCcf`: whether a magnetometer sample may
+steer heading. Norm and dip are compared with a reference field (learnt after a (re)initialisation, replaced by a new
+field that stays steady while the body turns); the field's direction in the world is checked to stay put (a field
+that moves with position or with the body is no heading reference). The per-sample bounds test is inlined in
+``QuaternionCcf._step``; everything here runs on rejected samples or once per bias-update block."""
+
+from __future__ import annotations
+
+import math
+from math import sqrt
+
+from ..base import OrientationFilter
+from .bias import BiasKalman
+from .discretisation import _BlockCoefficients, _Coefficients
+from .params import MAG_BAND_S, MAG_REJECT_SIGMAS, NEW_FIELD_TURN_RAD, CcfParams
+
+#: The new-field timer loses this many seconds per second of samples that disagree with the candidate.
+_LEAK = 3.0
+_REJECT2 = MAG_REJECT_SIGMAS**2
+
+
+class MagGate(OrientationFilter):
+    """The gate's state and rare paths (a base of :class:`~ccf_ros.core.ccf.QuaternionCcf`, which owns the
+    coefficients, the bias filter and the heading variance it reads)."""
+
+    __slots__ = (
+        '_mag_band',
+        '_mag_band_t',
+        '_mag_bounds',
+        '_mag_candidate',
+        '_mag_consistent',
+        '_mag_have_ref',
+        '_mag_learn_n',
+        '_mag_learn_s',
+        '_mag_new_s',
+        '_mag_ref',
+        '_mag_rejected_t',
+        '_mag_weight',
+        # The heading's drift variance, rad² (the filter's; raised here when a new field is accepted).
+        '_var_head',
+    )
+    params: CcfParams
+    # Owned by QuaternionCcf (declared there), read here.
+    _coef: _Coefficients
+    _bcoef: _BlockCoefficients
+    _kf: BiasKalman
+    _var_head: float
+
+    def _forget_mag_reference(self) -> None:
+        """No reference field: the next usable magnetometer sample becomes it (see :meth:`_mag_rejected`)."""
+        self._mag_ref = (0.0, 0.0)
+        # Bounds that accept nothing, so that the first sample goes through _mag_rejected and sets the reference.
+        self._mag_bounds = (math.inf, -math.inf, 2.0, -2.0)
+        self._mag_candidate = (0.0, 0.0, 0.0, 0.0, (0.0,) * 7)
+        self._mag_have_ref = False
+        self._mag_new_s = 0.0
+        self._mag_rejected_t = -math.inf
+        self._mag_learn_s = 0.0
+        self._mag_learn_n = 0
+        self.mag_disturbed = False
+        # The field's world direction band-passed (two unit-vector low-passes and the squared deviation's low-pass;
+        # None: seeded by the next block), and the verdict.
+        self._mag_band: tuple[float, ...] | None = None
+        self._mag_band_t = -math.inf
+        self._mag_consistent = True
+        # The heading blend's gain relative to tau_mag_s's (1: the field is as steady as a homogeneous one).
+        self._mag_weight = 1.0
+
+    def _bounds(self, norm: float, sin_dip: float) -> tuple[float, float, float, float]:
+        """Acceptance bounds (squared norm, sin(dip)) around a field of ``norm`` and dip ``asin(sin_dip)``.
+
+        Comparing squared norms and sines keeps sqrt and asin out of the per-sample path.
+        """
+        p = self.params
+        dip = math.asin(max(-1.0, min(1.0, sin_dip)))
+        lo = norm * (1.0 - p.mag_norm_tol)
+        hi = norm * (1.0 + p.mag_norm_tol)
+        return (
+            lo * lo,
+            hi * hi,
+            math.sin(max(-math.pi / 2, dip - p.mag_dip_tol_rad)),
+            math.sin(min(math.pi / 2, dip + p.mag_dip_tol_rad)),
+        )
+
+    def _set_mag_reference(self, norm: float, sin_dip: float, *, learn: bool = True) -> None:
+        """Accept a field of ``norm`` (sensor unit) and dip ``asin(sin_dip)`` as undisturbed; with ``learn``, as the
+        first sample of the mean over the next ``mag_ref_learn_s`` that becomes the reference."""
+        self._mag_ref = (norm, sin_dip)
+        self._mag_have_ref = True
+        self._mag_new_s = 0.0
+        self.mag_disturbed = False
+        self._mag_learn_n = 1
+        self._mag_learn_s = self.params.mag_ref_learn_s if learn else 0.0
+        if self._mag_learn_s > 0.0:
+            # Learning: the reference is the mean of the samples of the next mag_ref_learn_s, all accepted; bounds
+            # that accept nothing route them through _mag_rejected, off the common path.
+            self._mag_bounds = (math.inf, -math.inf, 2.0, -2.0)
+        else:
+            self._mag_bounds = self._bounds(norm, sin_dip)
+        self._mag_candidate = (0.0, 0.0, 0.0, 0.0, (0.0,) * 7)
+
+    def _mag_consistency(self, we: float, wn: float, wu: float, ce: float, cn: float, cu: float) -> None:
+        """Whether the field stays put in the world, once per block of ``t`` s: its samples summed in world
+        coordinates through the attitude (``we, wn, wu``: east, north, up, sensor unit), and the heading corrections
+        the LCF applied meanwhile (``ce, cn, cu``: a rotation vector in world coordinates, rad; they turn the attitude,
+        and so the field seen through it).
+
+        A homogeneous field keeps its world direction however the body turns; the attitude carried by the gyro is
+        good to about a degree over seconds. A field that varies with position (a structure near the workspace, a
+        magnet passed by), one carried by the body (a magnet or motor on it: it turns with the body) or one that
+        changes in time moves. The direction's band-pass between ``MAG_BAND_S`` (its deviation RMS over
+        ``MAG_SCORE_S``) against ``mag_consistency_rad`` (with hysteresis: half of it to become consistent again)
+        decides whether the field may steer heading (and the bias estimate) at all; agreement of norm and dip with
+        a reference cannot see a field that turns.
+        """
+        c = self._bcoef
+        n = sqrt(we * we + wn * wn + wu * wu)
+        if not n:
+            return
+        ue, un, uu = we / n, wn / n, wu / n
+        band = self._mag_band
+        t_now = self._t_last
+        gap = t_now - self._mag_band_t > MAG_BAND_S[0]
+        self._mag_band_t = t_now
+        if band is None or gap:
+            # First, or after the field was rejected for a while (the gyro drifted meanwhile): the direction's
+            # filters start again from here; the wander score keeps its memory.
+            self._mag_band = (ue, un, uu, ue, un, uu, 0.0 if band is None else band[6])
+            return
+        ae, an, au, be, bn, bu, s2 = band
+        # The LCF's corrections turned the field seen through the attitude by (ce, cn, cu): turn the filters' states
+        # with them (first order), so that only the field's own motion shows.
+        ae, an, au = ae + (cn * au - cu * an), an + (cu * ae - ce * au), au + (ce * an - cn * ae)
+        be, bn, bu = be + (cn * bu - cu * bn), bn + (cu * be - ce * bu), bu + (ce * bn - cn * be)
+        k1, k2 = c.k_band1, c.k_band2
+        ae += k1 * (ue - ae)
+        an += k1 * (un - an)
+        au += k1 * (uu - au)
+        be += k2 * (ae - be)
+        bn += k2 * (an - bn)
+        bu += k2 * (au - bu)
+        de, dn_, du = ae - be, an - bn, au - bu
+        s2 += c.k_score * (de * de + dn_ * dn_ + du * du - s2)
+        self._mag_band = (ae, an, au, be, bn, bu, s2)
+        # The heading reference is as noisy as the field wanders: the blend's time constant (and the bias estimate's
+        # heading noise) grows with the wander beyond a homogeneous field's, which includes the drift an unknown
+        # bias gives the attitude.
+        r2 = s2 / (c.wander_var + c.drift_var * self._kf.u)
+        self._mag_weight = 1.0 / sqrt(r2) if r2 > 1.0 else 1.0
+        if self._mag_consistent:
+            if r2 > _REJECT2:
+                self._mag_consistent = False
+        elif r2 < 0.25 * _REJECT2:
+            self._mag_consistent = True
+
+    def _mag_rejected(self, dt: float, norm: float, sin_dip: float, me: float, mn: float, mu: float, wx: float,
+                      wy: float, wz: float) -> bool:
+        """Book-keeping for a magnetometer sample outside the acceptance bounds (rare path).
+
+        Returns True if the sample is to be used after all: it began the reference (first usable sample after a
+        (re)initialisation), the reference is being learnt (the ``mag_ref_learn_s`` after that), or a new field
+        stayed steady long enough, and put in the world while the body turned by :data:`NEW_FIELD_TURN_RAD`, to
+        become the reference. ``me, mn, mu``: the sample in world coordinates (east, north, up) through the attitude;
+        ``wx, wy, wz``: the bias-corrected rate, rad/s.
+        """
+        if not self._mag_have_ref:
+            self._set_mag_reference(norm, sin_dip)
+            return True
+        if self._mag_learn_s > 0.0:
+            # Weights growing linearly with the sample's index: after a (re)initialisation while moving, the tilt
+            # (and so the dip) converges like 1/t, and the early samples count least.
+            i = self._mag_learn_n = self._mag_learn_n + 1
+            k = 2.0 / (i + 1)
+            rn, rs = self._mag_ref
+            self._mag_ref = (rn + k * (norm - rn), rs + k * (sin_dip - rs))
+            self._mag_learn_s -= dt
+            if self._mag_learn_s <= 0.0:
+                self._mag_bounds = self._bounds(*self._mag_ref)
+            return True
+        self.mag_disturbed = True
+        # The candidate new field: the mean (norm, sin dip) of the rejected samples that agree with it, n of them,
+        # and a leaky timer: + dt per agreeing sample, - _LEAK x the time of anything else (an outlier, accepted
+        # samples or no magnetometer since the last rejection). A field that agrees for mag_reaccept_s net becomes
+        # the reference (with a fraction f of outliers after mag_reaccept_s / (1 - f (1 + _LEAK))); single
+        # outliers (noise, a tilt error while moving) do not restart it.
+        # n: a float count (0.0: no candidate yet); turn: rad turned while timed; band: the candidate's world
+        # direction band-passed as in _mag_consistency (sample by sample here: no heading corrections meanwhile).
+        cn, cs, n, turn, band = self._mag_candidate
+        p = self.params
+        c = self._coef
+        t = self._t_last
+        timer = self._mag_new_s - _LEAK * (t - self._mag_rejected_t - dt)
+        self._mag_rejected_t = t
+        if n and abs(norm - cn) <= p.mag_norm_tol * cn and abs(sin_dip - cs) <= p.mag_dip_tol_rad * sqrt(
+            max(1.0 - cs * cs, 1e-6)
+        ):
+            n += 1.0
+            cn += (norm - cn) / n
+            cs += (sin_dip - cs) / n
+            ae, an, au, be, bn, bu, s2 = band
+            k1, k2 = c.k_band1, c.k_band2
+            ae += k1 * (me / norm - ae)
+            an += k1 * (mn / norm - an)
+            au += k1 * (mu / norm - au)
+            be += k2 * (ae - be)
+            bn += k2 * (an - bn)
+            bu += k2 * (au - bu)
+            de, dn_, du = ae - be, an - bn, au - bu
+            s2 += c.k_score * (de * de + dn_ * dn_ + du * du - s2)
+            band = (ae, an, au, be, bn, bu, s2)
+            # Timed only while the field stays put in the world (a candidate that moves is no new normal).
+            bc = self._bcoef
+            if s2 < 0.25 * _REJECT2 * (bc.wander_var + bc.drift_var * self._kf.u):
+                timer += dt
+                turn += sqrt(wx * wx + wy * wy + wz * wz) * dt
+            self._mag_candidate = (cn, cs, n, turn, band)
+            if timer > p.mag_reaccept_s and turn >= NEW_FIELD_TURN_RAD:
+                # A different field that stayed steady this long is the new normal (moved robot, new mounting). Its
+                # mean over the agreeing samples is the reference at once: no learning window, which would average
+                # the outliers back in with the gate open.
+                self._set_mag_reference(cn, cs, learn=False)
+                # Its verdict carries over: it stayed put while timed.
+                self._mag_band = band
+                self._mag_band_t = t
+                self._mag_consistent = True
+                self._mag_weight = 1.0
+                # The heading kept so far came from the old field (or the gyro since): it is re-acquired from the new
+                # one, as at a start.
+                self._var_head = max(self._var_head, (0.5 * math.pi) ** 2)
+                return True
+        else:
+            timer -= _LEAK * dt
+        if timer <= 0.0:
+            # Not steady: start timing a new candidate field from this sample.
+            u = (me / norm, mn / norm, mu / norm)
+            self._mag_candidate = (norm, sin_dip, 1.0, 0.0, (*u, *u, 0.0))
+            timer = 0.0
+        self._mag_new_s = timer
+        return False
