@@ -46,15 +46,15 @@ def domain_range(spec: str | None = None) -> range:
 _next_domain = [random.Random(os.getpid()).randrange(1 << 16)]
 
 
-def acquire_domain(domains: range, wait_s: float = DOMAIN_WAIT_S) -> tuple[int, int]:
+def acquire_domain(domains: range, wait_s: float = DOMAIN_WAIT_S, lock_dir: Path = DOMAIN_LOCK_DIR) -> tuple[int, int]:
     """Lock a free domain of ``domains``: (domain, fd of its lock file; closing it releases the domain)."""
-    DOMAIN_LOCK_DIR.mkdir(mode=0o777, exist_ok=True)
+    lock_dir.mkdir(mode=0o777, exist_ok=True)
     deadline = time.monotonic() + wait_s
     while True:
         for i in range(len(domains)):
             k = (_next_domain[0] + i) % len(domains)
             d = domains[k]
-            fd = os.open(DOMAIN_LOCK_DIR / f'{d}.lock', os.O_CREAT | os.O_RDWR, 0o666)
+            fd = os.open(lock_dir / f'{d}.lock', os.O_CREAT | os.O_RDWR, 0o666)
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:
