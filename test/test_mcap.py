@@ -131,3 +131,26 @@ def test_topics_are_detected_by_type(sim_bag, tmp_path):
                 w.write(extra, t, raw)
     with open_bag(odd) as reader, pytest.raises(BagError, match=r'several sensor_msgs/Imu topics \(/a/imu, /b/imu\)'):
         detect_topics(reader, odd, None, None)
+
+
+def test_overlapping_chunks_stream_one_neighbour_at_a_time(tmp_path):
+    """Stamps jitter by +-5 ms around a steady clock: each chunk overlaps its neighbours in time only. The merge
+    gives rosbags' order while holding at most two chunks decoded, not all of them."""
+    ts = typestore()
+    rng = random.Random(5)
+    bag = tmp_path / 'jitter'
+    String = ts.types['std_msgs/msg/String']
+    with open_writer(bag) as w:
+        a = w.add_connection('/a', 'std_msgs/msg/String', typestore=ts)
+        for k in range(16_000):
+            payload = ts.serialize_cdr(String(data=f'{k:08d}' * 120), 'std_msgs/msg/String')
+            w.write(a, 10**9 + k * 1_000_000 + rng.randrange(-5_000_000, 5_000_000), payload)
+    mcap = McapFile(next(bag.glob('*.mcap')))
+    assert len(mcap._chunks) >= 10
+    with open_bag(bag) as reader:
+        conns = list(reader.connections)
+        theirs = [(t, bytes(raw)) for _, t, raw in reader.messages(connections=conns)]
+    (cid,) = mcap.channels
+    mine = [(t, bytes(raw)) for _, t, raw in mcap.messages({cid: conns[0]})]
+    assert len(mine) == 16_000 and mine == theirs
+    assert 1 <= mcap.max_open_chunks <= 2, mcap.max_open_chunks

@@ -3,9 +3,11 @@ the bag's result file written atomically. The only code that runs on Dask worker
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
+import threading
 import time
 import uuid
 from dataclasses import dataclass
@@ -28,6 +30,11 @@ class VersionMismatch(RuntimeError):
 
 class BagTimeout(RuntimeError):
     """The bag took longer than ``--task-timeout``."""
+
+
+class _TimeUp(BaseException):
+    """What the deadline's timer raises in the task's thread: not an ``Exception``, so no ``except Exception`` on
+    the way (a read guard turning errors into :class:`BagError`) takes it for something else."""
 
 
 @dataclass(frozen=True)
@@ -91,6 +98,26 @@ def _write_first(path: Path, text: str) -> bool:
         tmp.unlink(missing_ok=True)
 
 
+def _publish(new: Path, path: Path) -> None:
+    """Rename the complete bag folder ``new`` to ``path`` atomically, replacing a bag there (an earlier run's, or
+    another attempt's at the same key: the same messages). A folder cannot be renamed over a non-empty one, so the
+    old one is first moved aside under a unique name and removed after."""
+    import shutil
+
+    for _ in range(5):  # (another attempt may publish between our two renames: then again)
+        try:
+            new.rename(path)
+            return
+        except OSError:
+            if not path.exists():
+                raise
+        aside = path.with_name(f'.{path.name}.{uuid.uuid4().hex}.old.partial')
+        with contextlib.suppress(FileNotFoundError):
+            path.rename(aside)
+        shutil.rmtree(aside, ignore_errors=True)
+    raise OSError(f'cannot publish {path}: other attempts keep replacing it')
+
+
 def filter_metrics(engine: Any) -> dict[str, float]:
     """The filter's figures at the end of a bag: NaN resets, restarts, gyro-only share, final bias and its σ."""
     f = engine.filter
@@ -109,10 +136,8 @@ def filter_metrics(engine: Any) -> dict[str, float]:
     }
 
 
-def _observe(engine: Any, health: HealthAccumulator, timeout_s: float) -> None:
-    """Route every IMU sample the engine gets through ``health`` too, and end the bag (:class:`BagTimeout`) once it
-    has run ``timeout_s`` (0: never), checked every block."""
-    deadline = time.monotonic() + timeout_s if timeout_s > 0 else 0.0
+def _observe(engine: Any, health: HealthAccumulator) -> None:
+    """Route every IMU sample the engine gets through ``health`` too."""
     on_imu = engine.on_imu
     add, buf, filt = health.add, health._buf, engine.filter
     gated = hasattr(filt, 'mag_disturbed')
@@ -122,12 +147,63 @@ def _observe(engine: Any, health: HealthAccumulator, timeout_s: float) -> None:
         add((t_s, gyr, acc, engine.paired_mag, gated and filt.mag_disturbed))
         if len(buf) >= BLOCK:
             health.flush()
-            if deadline and time.monotonic() > deadline:
-                raise BagTimeout(f'took longer than the task timeout ({timeout_s:g} s)')
         return out
 
     setattr(engine, 'on_imu', observed)  # noqa: B010 - an instance attribute over the method, for this engine only
 
+
+class _Deadline:
+    """``--task-timeout`` by the clock, at no cost per sample: a timer thread raises :class:`_TimeUp` in the task's
+    thread once ``timeout_s`` passed (``PyThreadState_SetAsyncExc``: delivered at the thread's next Python
+    instruction, so a bag that hangs in Python code anywhere, reading included, ends too; a call blocked inside C,
+    e.g. a read from a dead network mount, ends when that call returns). The task reports it as :class:`BagTimeout`.
+
+    Use as a context manager around the bag's work only: leaving it disarms the timer under a lock, and an
+    exception set but not yet delivered is withdrawn and raised here instead, so none escapes into the code after.
+    """
+
+    def __init__(self, timeout_s: float) -> None:
+        self.timeout_s = timeout_s
+        self._lock = threading.Lock()
+        self._armed = False
+        self._fired = False
+        self._tid = threading.get_ident()
+        self._timer: threading.Timer | None = None
+
+    def __enter__(self) -> _Deadline:
+        if self.timeout_s > 0:
+            self._armed = True
+            self._timer = threading.Timer(self.timeout_s, self._fire)
+            self._timer.daemon = True
+            self._timer.start()
+        return self
+
+    def _fire(self) -> None:
+        with self._lock:
+            if self._armed:
+                self._fired = True
+                _set_async_exc(self._tid, _TimeUp)
+
+    def __exit__(self, *exc: object) -> None:
+        if self._timer is None:
+            return
+        self._timer.cancel()
+        with self._lock:
+            self._armed = False
+            fired = self._fired
+            if fired:
+                _set_async_exc(self._tid, None)  # withdrawn if not delivered yet
+        if fired and not isinstance(exc[1], _TimeUp):
+            raise _TimeUp
+
+    def message(self) -> str:
+        return f'took longer than the task timeout ({self.timeout_s:g} s)'
+
+
+def _set_async_exc(tid: int, exc: type[BaseException] | None) -> None:
+    import ctypes
+
+    ctypes.pythonapi.PyThreadState_SetAsyncExc(ctypes.c_ulong(tid), ctypes.py_object(exc) if exc else None)
 
 
 def _health_only(bag: str, engine: Any, opts: FleetOptions) -> list[str]:
@@ -193,24 +269,31 @@ def _run(bag: str, key: str, opts: FleetOptions) -> dict[str, Any]:
 
     engine = make_engine(opts.settings, opts.strict)
     health = HealthAccumulator()
-    _observe(engine, health, opts.task_timeout_s)
+    _observe(engine, health)
     if opts.slow_bag_s:
         time.sleep(opts.slow_bag_s)
     has_ref = bool(opts.reference) and _has_reference(bag, opts.reference)
     record: dict[str, Any] = {}
     if opts.write_bags or has_ref:
-        out_bag = output_bag_path(opts.out, bag, key)
-        summary = replay(bag, out_bag, engine, imu_topic=opts.imu_topic, mag_topic=opts.mag_topic, detect=True,
-                         no_mag=opts.no_mag, overwrite=True, progress=False)
-        warnings = summary.warnings
-        if has_ref:
-            record['accuracy'] = _accuracy(out_bag, bag, opts)
-        if opts.write_bags:
-            record['output'] = str(out_bag)
-        else:
-            import shutil
+        import shutil
 
-            shutil.rmtree(out_bag, ignore_errors=True)
+        out_bag = output_bag_path(opts.out, bag, key)
+        # This attempt's own staging folder: another attempt at the same bag (a retry on another worker while a
+        # lost one still runs) stages elsewhere. The bag is named as its final self inside (its storage file too).
+        stage = out_bag.with_name(f'.{out_bag.name}.{uuid.uuid4().hex}.partial')
+        try:
+            stage.mkdir(parents=True)
+            done = stage / out_bag.name
+            summary = replay(bag, done, engine, imu_topic=opts.imu_topic, mag_topic=opts.mag_topic, detect=True,
+                             no_mag=opts.no_mag, overwrite=False, progress=False)
+            warnings = summary.warnings
+            if has_ref:
+                record['accuracy'] = _accuracy(done, bag, opts)
+            if opts.write_bags:
+                _publish(done, out_bag)
+                record['output'] = str(out_bag)
+        finally:
+            shutil.rmtree(stage, ignore_errors=True)
     else:
         warnings = _health_only(bag, engine, opts)
     metrics = health.result(filter_metrics(engine))
@@ -231,8 +314,13 @@ def process_bag(bag: str, key: str, opts: FleetOptions) -> dict[str, Any]:
         raise VersionMismatch(f'worker has ccf_ros {__version__}, the driver {opts.version}: install the same version '
                               'on every worker')
     t0 = time.perf_counter()
+    deadline = _Deadline(opts.task_timeout_s)
     try:
-        body = _run(bag, key, opts)
+        try:
+            with deadline:
+                body = _run(bag, key, opts)
+        except _TimeUp:
+            raise BagTimeout(deadline.message()) from None
         result = {'bag': bag, 'key': key, 'status': 'ok', **body}
     except Exception as err:  # a bad bag, or the filter raising: this bag fails, the others go on
         msg = ' '.join(str(err).split()) or type(err).__name__

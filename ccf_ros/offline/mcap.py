@@ -92,6 +92,8 @@ class McapFile:
         self.path = Path(path)
         self.channels: dict[int, tuple[str, str]] = {}
         self._chunks: list[_Chunk] = []
+        #: the most chunks decoded at once by the latest :meth:`messages` (memory holds that many)
+        self.max_open_chunks = 0
         with self.path.open('rb') as f:
             if f.read(8) != MAGIC:
                 raise McapError(f'{self.path}: not an MCAP file')
@@ -230,22 +232,54 @@ class McapFile:
         """``(wanted[channel], log_time_ns, data)`` of the messages of the ``wanted`` channels, in rosbags' order.
 
         Chunks that follow each other in time (the usual case) are read one after the other; overlapping chunks are
-        merged by (time, chunk offset), as rosbags merges them.
+        merged by (time, chunk offset), as rosbags merges them, streaming: a chunk is decoded only once the merge
+        reaches its start time, so memory holds the chunks that overlap the current time, not the whole file.
         """
         chunks = [c for c in self._chunks if c.channels & wanted.keys() or not c.channels]
         chunks.sort(key=lambda c: c.offset)
         with self.path.open('rb') as f:
-            sequential = all(a.end_ns <= b.start_ns for a, b in pairwise(chunks))
-            if sequential:
+            if all(a.end_ns <= b.start_ns for a, b in pairwise(chunks)):
+                self.max_open_chunks = min(len(chunks), 1)
                 for c in chunks:
                     for t, conn, data in self._records(f, c, wanted):
                         yield conn, t, data
                 return
-            records = [self._records(f, c, wanted) for c in chunks]
-        keyed = [[(t, c.offset, i, conn, data) for i, (t, conn, data) in enumerate(r)] for c, r in zip(chunks, records,
-                                                                                                  strict=True)]
-        for t, _, _, conn, data in heapq.merge(*keyed, key=itemgetter(0, 1)):
+            yield from self._merged(f, chunks, wanted)
+
+    def _merged(self, f: Any, chunks: list[_Chunk], wanted: dict[int, Any]) -> Iterator[tuple[Any, int, bytes]]:
+        """The k-way merge of :meth:`messages` for chunks that overlap in time.
+
+        A chunk holds no message before its start time, so before the earliest pending message (time ``t``) is
+        given out, every chunk starting at or before ``t`` must be open; the later ones wait. The heap holds one
+        pending message per open chunk, keyed (time, chunk offset, index in chunk)."""
+        todo = sorted(chunks, key=lambda c: (c.start_ns, c.offset))
+        heap: list[tuple[int, int, int, Any, bytes, Iterator[tuple[int, Any, bytes]]]] = []
+        nxt, n_open = 0, 0
+        self.max_open_chunks = 0
+
+        def open_chunk(c: _Chunk) -> None:
+            nonlocal n_open
+            it = iter(self._records(f, c, wanted))
+            first = next(it, None)
+            if first is not None:
+                n_open += 1
+                self.max_open_chunks = max(self.max_open_chunks, n_open)
+                heapq.heappush(heap, (first[0], c.offset, 0, first[1], first[2], it))
+
+        while heap or nxt < len(todo):
+            while nxt < len(todo) and (not heap or todo[nxt].start_ns <= heap[0][0]):
+                open_chunk(todo[nxt])
+                nxt += 1
+            if not heap:
+                continue
+            t, off, i, conn, data, it = heap[0]
             yield conn, t, data
+            rec = next(it, None)
+            if rec is None:
+                heapq.heappop(heap)
+                n_open -= 1
+            else:
+                heapq.heapreplace(heap, (rec[0], off, i + 1, rec[1], rec[2], it))
 
 
 def _mcap_path(reader: AnyReader) -> Path | None:
