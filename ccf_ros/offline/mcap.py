@@ -18,12 +18,14 @@ from __future__ import annotations
 
 import heapq
 import struct
+import sys
 import zlib
+from array import array
 from collections import defaultdict
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from io import BytesIO
-from itertools import pairwise
+from itertools import chain, pairwise
 from operator import itemgetter
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -33,7 +35,7 @@ if TYPE_CHECKING:
     from rosbags.interfaces import Connection
     from rosbags.rosbag2 import Writer
 
-__all__ = ['McapError', 'McapFile', 'fast_messages', 'fast_writer']
+__all__ = ['McapError', 'McapFile', 'fast_batches', 'fast_messages', 'fast_writer', 'record_writer']
 
 MAGIC = b'\x89MCAP0\r\n'
 _U16 = struct.Struct('<H')
@@ -362,12 +364,9 @@ def _mcap_path(reader: AnyReader) -> Path | None:
     return Path(path) if path is not None and str(path).endswith('.mcap') else None
 
 
-def fast_messages(
-    reader: AnyReader, connections: list[Connection]
-) -> Iterator[tuple[Connection, int, bytes]] | None:
-    """The messages of ``connections`` through :class:`McapFile` (same order and bytes as rosbags), or None where
-    rosbags must read them (not a single uncompressed-message MCAP file, unindexed, or channels that do not map
-    one-to-one to connections). Raises :class:`McapError` on a malformed file."""
+def _wanted(reader: AnyReader, connections: list[Connection]) -> tuple[McapFile, dict[int, Any]] | None:
+    """The bag's :class:`McapFile` and its channel id for each of ``connections`` (in their order), or None where
+    rosbags must read them (see :func:`fast_messages`)."""
     path = _mcap_path(reader)
     if path is None:
         return None
@@ -384,7 +383,24 @@ def fast_messages(
         if len(ids) != 1 or sum(1 for c in reader.connections if (c.topic, c.msgtype) == (conn.topic, conn.msgtype)) != 1:
             return None
         wanted[ids[0]] = conn
-    return mcap.messages(wanted)
+    return mcap, wanted
+
+
+def fast_messages(
+    reader: AnyReader, connections: list[Connection]
+) -> Iterator[tuple[Connection, int, bytes]] | None:
+    """The messages of ``connections`` through :class:`McapFile` (same order and bytes as rosbags), or None where
+    rosbags must read them (not a single uncompressed-message MCAP file, unindexed, or channels that do not map
+    one-to-one to connections). Raises :class:`McapError` on a malformed file."""
+    found = _wanted(reader, connections)
+    return None if found is None else found[0].messages(found[1])
+
+
+def fast_batches(reader: AnyReader, connections: list[Connection]) -> Iterator[_Columns] | None:
+    """The messages of :func:`fast_messages` as one :class:`_Columns` per chunk (``owner``: the index in
+    ``connections``), or None where they cannot come so (see :func:`fast_messages`; chunks that overlap in time)."""
+    found = _wanted(reader, connections)
+    return None if found is None else found[0].batches(found[1])
 
 
 def fast_writer(writer: Writer) -> tuple[Callable[[Connection, int, Any], None], Callable[[], None]]:
@@ -451,8 +467,6 @@ def fast_writer(writer: Writer) -> tuple[Callable[[Connection, int, Any], None],
 def _close_chunk(storage: Any) -> None:
     """rosbags' ``McapWriter.close_chunk`` (the same bytes), with the message index packed in one call per channel
     instead of two writes per message."""
-    import numpy as np
-
     chunk = storage.chunk
     data = chunk.bio.getvalue()
     compressed = storage.compressor(data)
@@ -467,7 +481,10 @@ def _close_chunk(storage: Any) -> None:
     offsets: list[tuple[int, int]] = []
     for cid, msgs in chunk.msgs.items():
         offsets.append((cid, bio.tell()))
-        index = np.array(msgs, dtype='<u8').tobytes()
+        pairs = array('Q', chain.from_iterable(msgs))
+        if sys.byteorder == 'big':
+            pairs.byteswap()
+        index = pairs.tobytes()
         bio.write(_RECORD.pack(0x07, 6 + len(index)))
         bio.write(_INDEX_HEAD.pack(cid, len(index)))
         bio.write(index)

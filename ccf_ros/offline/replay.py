@@ -41,13 +41,17 @@ from .bagio import (
     unreadable,
 )
 from .fastcdr import (
+    ANGULAR_VELOCITY,
+    LINEAR_ACCELERATION,
     LITTLE_ENDIAN_CDR,
+    _gather,
     frame_id,
     patch_imu,
     patch_imu_vectors,
     read_imu,
     read_mag,
     reframe_imu,
+    stamped_columns,
     vector3_stamped,
 )
 from .messages import fill_imu, reframe_msg, stamp_s
@@ -60,6 +64,11 @@ if TYPE_CHECKING:  # rosbags is imported when a bag is opened, not with this mod
 IMU = 'sensor_msgs/msg/Imu'
 MAGNETIC_FIELD = 'sensor_msgs/msg/MagneticField'
 VECTOR3_STAMPED = 'geometry_msgs/msg/Vector3Stamped'
+
+#: An MCAP message record's header: opcode 0x05, record length, channel id, sequence, log and publish time (ns).
+_RECORD_HEAD = struct.Struct('<BQHIQQ')
+_RECORD_DTYPE = np.dtype([('op', 'u1'), ('length', '<u8'), ('cid', '<u2'), ('seq', '<u4'), ('t', '<u8'),
+                          ('t_pub', '<u8')])
 
 #: Messages read before the filter runs over them and their answers are written. The filter sees the same calls in
 #: the same order as message by message, but runs in a tight loop.
@@ -386,6 +395,7 @@ class _Replayer:
             self.warnings.append(f'no {topics.mag} in the bag: 6-D, heading relative to the start (--mag-topic names '
                                  'another topic, --no-mag silences this)')
         self._reader = reader
+        self._engine = engine
         self._bag = bag
         self._hint = _HintPath(engine, reader, bag, motion_hint)
         hint_conns = connections_for(reader, topics.motion_hint) if topics.motion_hint else []
@@ -419,6 +429,12 @@ class _Replayer:
         )
         n_out = 0
         try:
+            bulk = self._bulk()
+            if bulk is not None:
+                for n_o, n_imu in bulk:
+                    n_out += n_o
+                    bar.update(n_imu)
+                return n_out
             for block in self._blocks():
                 answers, n_imu = self._filter(block)
                 n_out += self._write(block, answers)
@@ -426,6 +442,135 @@ class _Replayer:
         finally:
             bar.close()
         return n_out
+
+    def _bulk(self) -> Iterator[tuple[int, int]] | None:
+        """The bulk path, where it applies: a single-file MCAP input read a chunk at a time (:func:`fast_batches`),
+        the output's records framed with numpy from the input's bytes (:func:`record_writer`); nothing to copy, no
+        motion hint, no output frame, no state file waiting for the sensor's frame_id. Yields (answers, IMU samples)
+        per chunk; None where it does not apply."""
+        if (self._outputs.copies or not self._reader.is2 or self._fast._reframe or self._hint.msgtype
+                or self._engine.wants_sensor_frame):
+            return None
+        from .mcap import McapError, fast_batches, record_writer
+
+        write_records = record_writer(self._outputs.writer.writer)
+        if write_records is None:
+            return None
+        try:
+            batches = fast_batches(self._reader, self._inputs)
+        except (McapError, OSError) as err:
+            raise unreadable(self._bag, err) from err
+        if batches is None:
+            return None
+        return self._bulk_run(batches, write_records)
+
+    def _bulk_run(self, batches: Iterator[Any], write_records: Any) -> Iterator[tuple[int, int]]:
+        is_imu = np.array([self._kinds[c.id] is _IMU for c in self._inputs])
+        while True:
+            try:
+                cols = next(batches)
+            except StopIteration:
+                return
+            except Exception as err:  # a malformed chunk (McapError, zstd/lz4 errors, a short file)
+                raise unreadable(self._bag, err) from err
+            done = self._bulk_chunk(cols, is_imu[cols.owner], write_records)
+            if done is None:  # not all little-endian CDR, or a short message: message by message
+                block = self._entries(cols)
+                answers, n_imu = self._filter(block)
+                done = self._write(block, answers), n_imu
+            yield done
+
+    def _entries(self, cols: Any) -> list[_Entry]:
+        """A chunk's messages as :meth:`_blocks` gives them."""
+        fast_path, message_path, kinds = self._fast, self._message, self._kinds
+        buf = cols.buf
+        out: list[_Entry] = []
+        for k, t, a, b in zip(cols.owner.tolist(), cols.t_ns.tolist(), cols.start.tolist(), cols.end.tolist(),
+                              strict=True):
+            raw = buf[a:b]
+            out.append((kinds[self._inputs[k].id], fast_path if raw[:2] == LITTLE_ENDIAN_CDR else message_path, t, raw))
+        return out
+
+    def _bulk_chunk(self, cols: Any, imu: Any, write_records: Any) -> tuple[int, int] | None:
+        """One chunk's messages through the engine, in order, and its answers written; (answers, IMU samples), or
+        None if the chunk needs the message path (nothing done then)."""
+        u8 = np.frombuffer(cols.buf, dtype=np.uint8)
+        ii, mi = np.flatnonzero(imu), np.flatnonzero(~imu)
+        imu_cols = stamped_columns(u8, cols.start[ii], cols.end[ii], LINEAR_ACCELERATION + 24)
+        mag_cols = stamped_columns(u8, cols.start[mi], cols.end[mi], 24)
+        if imu_cols is None or mag_cols is None:
+            return None
+        (t_imu, body), (t_mag, mag_body) = imu_cols, mag_cols
+        n = len(imu)
+        t_all = np.empty(n)
+        v1, v2 = np.zeros((n, 3)), np.zeros((n, 3))
+        t_all[ii], t_all[mi] = t_imu, t_mag
+        at = cols.start[ii] + body
+        v1[ii] = _gather(u8, at + ANGULAR_VELOCITY, 24, '<f8')
+        v2[ii] = _gather(u8, at + LINEAR_ACCELERATION, 24, '<f8')
+        v1[mi] = _gather(u8, cols.start[mi] + mag_body, 24, '<f8')
+        on_imu, on_mag = self._engine.on_imu, self._engine.on_mag
+        outs: list[Output | None] = []
+        add = outs.append
+        # The engine sees the same calls, in the same order, with the same floats as message by message.
+        vec1: Any = map(tuple, v1.tolist())  # (as tuples, like struct gives them)
+        vec2: Any = map(tuple, v2.tolist())
+        for is_imu, t, a, b in zip(imu.tolist(), t_all.tolist(), vec1, vec2, strict=True):
+            if is_imu:
+                add(on_imu(t, a, b))
+            else:
+                on_mag(t, a)
+        answered = [k for k, o in enumerate(outs) if o is not None]
+        if answered:
+            sel = np.array(answered)
+            with self._outputs.writer.guarded():  # (its file-system errors are BagError)
+                write_records(*self._records(u8, cols.start[ii[sel]], cols.end[ii[sel]], body[sel],
+                                             cols.t_ns[ii[sel]], [outs[k] for k in answered]))
+        return len(answered), len(ii)
+
+    def _records(self, u8: Any, start: Any, end: Any, body: Any, t_ns: Any, outs: list[Any]) -> tuple[Any, ...]:
+        """The framed MCAP records of the answers (Imu, bias, Imu, bias, ...): the input Imu's bytes patched with
+        numpy where every message has the same length and header (the usual case), else one by one."""
+        imu_id, bias_id = self._outputs.imu.id, self._outputs.bias.id
+        m = len(outs)
+        times = [x for t in t_ns.tolist() for x in (t, t)]
+        cids = [imu_id, bias_id] * m
+        lengths = end - start
+        rate, lin = outs[0].angular_velocity is not None, outs[0].linear_acceleration is not None
+        uniform = ((lengths == lengths[0]).all() and (body == body[0]).all()
+                   and all((o.angular_velocity is not None) == rate and (o.linear_acceleration is not None) == lin
+                           for o in outs))
+        if not uniform:
+            parts: list[Any] = []
+            sizes: list[int] = []
+            for s, e, off, t, out in zip(start.tolist(), end.tolist(), body.tolist(), t_ns.tolist(), outs,
+                                         strict=True):
+                imu, bias = self._fast.serialize((u8[s:e].tobytes(), out, off))
+                for cid, data in ((imu_id, imu), (bias_id, bias)):
+                    parts += (_RECORD_HEAD.pack(0x05, 22 + len(data), cid, 0, t, t), data)
+                    sizes.append(31 + len(data))
+            return b''.join(parts), cids, times, sizes
+        size, off = int(lengths[0]), int(body[0])
+        rows = u8[start[:, None] + np.arange(size)]
+        rows[:, off:off + 104] = np.array([o.orientation_xyzw + o.covariance for o in outs], dtype='<f8').view(np.uint8)
+        if rate:
+            rows[:, off + ANGULAR_VELOCITY:off + ANGULAR_VELOCITY + 24] = np.array(
+                [o.angular_velocity for o in outs], dtype='<f8').view(np.uint8)
+        if lin:
+            rows[:, off + LINEAR_ACCELERATION:off + LINEAR_ACCELERATION + 24] = np.array(
+                [o.linear_acceleration for o in outs], dtype='<f8').view(np.uint8)
+        r_imu, r_bias = 31 + size, 31 + off + 24
+        rec = np.empty((m, r_imu + r_bias), dtype=np.uint8)
+        head = np.zeros(m, dtype=_RECORD_DTYPE)
+        head['op'], head['t'], head['t_pub'] = 0x05, t_ns, t_ns
+        head['length'], head['cid'] = 22 + size, imu_id
+        rec[:, :31] = head.view(np.uint8).reshape(m, 31)
+        rec[:, 31:r_imu] = rows
+        head['length'], head['cid'] = 22 + off + 24, bias_id
+        rec[:, r_imu:r_imu + 31] = head.view(np.uint8).reshape(m, 31)
+        rec[:, r_imu + 31:r_imu + 31 + off] = rows[:, :off]
+        rec[:, r_imu + 31 + off:] = np.array([o.bias for o in outs], dtype='<f8').view(np.uint8)
+        return rec.reshape(-1), cids, times, np.tile(np.array([r_imu, r_bias], dtype=np.int64), m)
 
     def _blocks(self) -> Iterator[list[_Entry]]:
         """The input's messages in bag order, in blocks of about :data:`BLOCK_SIZE` entries: a message to copy, a
