@@ -98,15 +98,17 @@ def per_core(bag: Path, work: Path, repeats: int) -> None:
     from ccf_ros.offline.replay import replay
 
     merged, strict = engine_settings(build_parser().parse_args(['fleet', 'run', 'x', '-o', 'y']))
-    fast_messages, fast_writer = mcap.fast_messages, mcap.fast_writer
+    fast = mcap.fast_messages, mcap.fast_writer, mcap.fast_batches, mcap.record_writer
 
     def old_replay() -> int:
         mcap.fast_messages = lambda *a: None  # type: ignore[assignment]
         mcap.fast_writer = lambda w: (w.write, lambda: None)  # type: ignore[assignment]
+        mcap.fast_batches = lambda *a: None  # type: ignore[assignment]
+        mcap.record_writer = lambda w: None  # type: ignore[assignment]
         try:
             return replay(bag, work / 'old', make_engine(merged, strict), overwrite=True, progress=False).n_in
         finally:
-            mcap.fast_messages, mcap.fast_writer = fast_messages, fast_writer
+            mcap.fast_messages, mcap.fast_writer, mcap.fast_batches, mcap.record_writer = fast
 
     def new_replay() -> int:
         return replay(bag, work / 'new', make_engine(merged, strict), overwrite=True, progress=False).n_in

@@ -371,6 +371,29 @@ ODOMETRY, TWIST_STAMPED = 'nav_msgs/msg/Odometry', 'geometry_msgs/msg/TwistStamp
 _Entry = tuple[Kind, Any, int, Any]
 
 
+def decode_chunk(cols: Any, imu: Any) -> tuple[Any, Any, Any, Any, Any, Any] | None:
+    """A chunk's IMU and magnetometer messages (``imu`` (N,) bool: which are IMU; :class:`~ccf_ros.offline.mcap._Columns`)
+    decoded with numpy as :func:`read_imu` and :func:`read_mag` decode one: the bytes ``u8``, the IMU messages'
+    indices (M,) and body offsets (M,), stamps ``t`` (N,) s, and (N, 3) ``v1`` (rate, or field) and ``v2``
+    (acceleration; 0 for a magnetometer). None if a message is not little-endian CDR or too short."""
+    u8 = np.frombuffer(cols.buf, dtype=np.uint8)
+    ii, mi = np.flatnonzero(imu), np.flatnonzero(~imu)
+    imu_cols = stamped_columns(u8, cols.start[ii], cols.end[ii], LINEAR_ACCELERATION + 24)
+    mag_cols = stamped_columns(u8, cols.start[mi], cols.end[mi], 24)
+    if imu_cols is None or mag_cols is None:
+        return None
+    (t_imu, body), (t_mag, mag_body) = imu_cols, mag_cols
+    n = len(imu)
+    t_all = np.empty(n)
+    v1, v2 = np.zeros((n, 3)), np.zeros((n, 3))
+    t_all[ii], t_all[mi] = t_imu, t_mag
+    at = cols.start[ii] + body
+    v1[ii] = _gather(u8, at + ANGULAR_VELOCITY, 24, '<f8')
+    v2[ii] = _gather(u8, at + LINEAR_ACCELERATION, 24, '<f8')
+    v1[mi] = _gather(u8, cols.start[mi] + mag_body, 24, '<f8')
+    return u8, ii, body, t_all, v1, v2
+
+
 class _Replayer:
     """The message loop of :func:`replay`: reads the input in blocks, feeds the engine, writes the output.
 
@@ -494,21 +517,10 @@ class _Replayer:
     def _bulk_chunk(self, cols: Any, imu: Any, write_records: Any) -> tuple[int, int] | None:
         """One chunk's messages through the engine, in order, and its answers written; (answers, IMU samples), or
         None if the chunk needs the message path (nothing done then)."""
-        u8 = np.frombuffer(cols.buf, dtype=np.uint8)
-        ii, mi = np.flatnonzero(imu), np.flatnonzero(~imu)
-        imu_cols = stamped_columns(u8, cols.start[ii], cols.end[ii], LINEAR_ACCELERATION + 24)
-        mag_cols = stamped_columns(u8, cols.start[mi], cols.end[mi], 24)
-        if imu_cols is None or mag_cols is None:
+        dec = decode_chunk(cols, imu)
+        if dec is None:
             return None
-        (t_imu, body), (t_mag, mag_body) = imu_cols, mag_cols
-        n = len(imu)
-        t_all = np.empty(n)
-        v1, v2 = np.zeros((n, 3)), np.zeros((n, 3))
-        t_all[ii], t_all[mi] = t_imu, t_mag
-        at = cols.start[ii] + body
-        v1[ii] = _gather(u8, at + ANGULAR_VELOCITY, 24, '<f8')
-        v2[ii] = _gather(u8, at + LINEAR_ACCELERATION, 24, '<f8')
-        v1[mi] = _gather(u8, cols.start[mi] + mag_body, 24, '<f8')
+        u8, ii, body, t_all, v1, v2 = dec
         on_imu, on_mag = self._engine.on_imu, self._engine.on_mag
         outs: list[Output | None] = []
         add = outs.append
