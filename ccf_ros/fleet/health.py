@@ -140,6 +140,22 @@ class HealthAccumulator:
         buf.clear()
         self._reduce(t, gyr, acc, mag, rejected)
 
+    def observe(self, engine: Any) -> None:
+        """Route every IMU sample ``engine`` gets through :meth:`add` too (its ``on_imu`` is wrapped, for this
+        engine only), with the paired magnetometer sample and the gate's verdict after the sample."""
+        on_imu = engine.on_imu
+        add, buf, filt = self.add, self._buf, engine.filter
+        gated = hasattr(filt, 'mag_disturbed')
+
+        def observed(t_s: float, gyr: Any, acc: Any) -> Any:
+            out = on_imu(t_s, gyr, acc)
+            add((t_s, gyr, acc, engine.paired_mag, gated and filt.mag_disturbed))
+            if len(buf) >= BLOCK:
+                self.flush()
+            return out
+
+        engine.on_imu = observed
+
     def add_block(self, t: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, rejected: np.ndarray) -> None:
         """Samples as arrays: stamps (N,) s, gyr (N, 3) rad/s, acc (N, 3) m/s², paired mag (N, 3) (NaN: none),
         rejected by the gate (N,); the same metrics as :meth:`add` for each, reduced in the same blocks of

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .health import BLOCK, HealthAccumulator, judge
+from .health import HealthAccumulator, judge
 
 __all__ = ['BagTimeout', 'FleetOptions', 'VersionMismatch', 'filter_metrics', 'process_bag', 'result_path']
 
@@ -134,22 +134,6 @@ def filter_metrics(engine: Any) -> dict[str, float]:
         'filter_bias_z_rad_s': float(bias[2]),
         'filter_bias_sigma_rad_s': float(sigma() if callable(sigma) else sigma),
     }
-
-
-def _observe(engine: Any, health: HealthAccumulator) -> None:
-    """Route every IMU sample the engine gets through ``health`` too."""
-    on_imu = engine.on_imu
-    add, buf, filt = health.add, health._buf, engine.filter
-    gated = hasattr(filt, 'mag_disturbed')
-
-    def observed(t_s: float, gyr: Any, acc: Any) -> Any:
-        out = on_imu(t_s, gyr, acc)
-        add((t_s, gyr, acc, engine.paired_mag, gated and filt.mag_disturbed))
-        if len(buf) >= BLOCK:
-            health.flush()
-        return out
-
-    setattr(engine, 'on_imu', observed)  # noqa: B010 - an instance attribute over the method, for this engine only
 
 
 class _Deadline:
@@ -292,7 +276,7 @@ def _health_only(bag: str, engine: Any, opts: FleetOptions, health: HealthAccumu
         if health is not None and _health_bulk(reader, bag, engine, health, conns, imu_ids):
             return warnings
         if health is not None:
-            _observe(engine, health)
+            health.observe(engine)
         on_imu, on_mag = engine.on_imu, engine.on_mag
         ros2 = reader.is2
         for conn, _, raw in read_messages(reader, bag, conns, fast=True):
@@ -343,7 +327,6 @@ def _run(bag: str, key: str, opts: FleetOptions) -> dict[str, Any]:
     has_ref = bool(opts.reference) and _has_reference(bag, opts.reference)
     record: dict[str, Any] = {}
     if opts.write_bags or has_ref:
-        _observe(engine, health)
         import shutil
 
         out_bag = output_bag_path(opts.out, bag, key)
@@ -354,7 +337,7 @@ def _run(bag: str, key: str, opts: FleetOptions) -> dict[str, Any]:
             stage.mkdir(parents=True)
             done = stage / out_bag.name
             summary = replay(bag, done, engine, imu_topic=opts.imu_topic, mag_topic=opts.mag_topic, detect=True,
-                             no_mag=opts.no_mag, overwrite=False, progress=False)
+                             no_mag=opts.no_mag, overwrite=False, progress=False, health=health)
             warnings = summary.warnings
             if has_ref:
                 record['accuracy'] = _accuracy(done, bag, opts)

@@ -504,7 +504,7 @@ def _close_chunk(storage: Any) -> None:
 
 
 #: Writes framed MCAP message records: ``(records, channel ids, log times ns, record sizes)``.
-RecordWriter = Callable[[Any, list[int], list[int], Any], None]
+RecordWriter = Callable[[Any, Any, Any, Any], None]
 
 
 def record_writer(writer: Writer) -> RecordWriter | None:
@@ -523,20 +523,23 @@ def record_writer(writer: Writer) -> RecordWriter | None:
         return None
     counts, stats = writer.counts, storage.channel_stats
 
-    def write_records(records: Any, cids: list[int], times: list[int], sizes: Any) -> None:
+    def write_records(records: Any, cids: Any, times: Any, sizes: Any) -> None:
+        cids = np.asarray(cids, dtype=np.int64)
+        times = np.asarray(times, dtype=np.int64)
         n = len(cids)
         if not n:
             return
-        t_lo, t_hi = min(times), max(times)
+        t_lo, t_hi = int(times.min()), int(times.max())
         writer.min_timestamp = min(t_lo, writer.min_timestamp)
         writer.max_timestamp = max(t_hi, writer.max_timestamp)
         storage.message_start_time = min(t_lo, storage.message_start_time)
         storage.message_end_time = max(t_hi, storage.message_end_time)
-        for cid, k in zip(*np.unique(np.asarray(cids), return_counts=True), strict=True):
+        for cid, k in zip(*np.unique(cids, return_counts=True), strict=True):
             counts[int(cid)] += int(k)
             stats[int(cid)] += int(k)
-        view = memoryview(records)
-        ends = np.cumsum(np.asarray(sizes, dtype=np.int64))
+        view = memoryview(records).cast('B')
+        sizes = np.asarray(sizes, dtype=np.int64)
+        ends = np.cumsum(sizes)
         i, at = 0, 0  # first record of this segment; its byte offset in records
         while i < n:
             chunk = storage.chunk
@@ -545,13 +548,16 @@ def record_writer(writer: Writer) -> RecordWriter | None:
             rel = ends[i:] - at + pos
             j = int(np.searchsorted(rel, _CHUNK_BYTES, side='right'))
             last = min(i + j, n - 1)
-            starts = (rel[:last - i + 1] - np.asarray(sizes[i:last + 1], dtype=np.int64)).tolist()
-            seg_t = times[i:last + 1]
+            starts = rel[:last - i + 1] - sizes[i:last + 1]
+            seg_c, seg_t = cids[i:last + 1], times[i:last + 1]
+            # The message index per channel, channels in the order of their first message (rosbags' dict order).
+            ids, first = np.unique(seg_c, return_index=True)
             msgs = chunk.msgs
-            for cid, t, p in zip(cids[i:last + 1], seg_t, starts, strict=True):
-                msgs[cid].append((t, p))
-            chunk.message_start_time = min(chunk.message_start_time, min(seg_t))
-            chunk.message_end_time = max(chunk.message_end_time, max(seg_t))
+            for cid in ids[np.argsort(first)].tolist():
+                mask = seg_c == cid
+                msgs[cid].extend(zip(seg_t[mask].tolist(), starts[mask].tolist(), strict=True))
+            chunk.message_start_time = min(chunk.message_start_time, int(seg_t.min()))
+            chunk.message_end_time = max(chunk.message_end_time, int(seg_t.max()))
             end = int(ends[last])
             chunk.bio.write(view[at:end])
             at, i = end, last + 1

@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple, Protocol, TypeVar
 
 import numpy as np
 
-from ..engine import ImuEngine, Output
+from ..engine import ImuEngine, Output, Vec3
 from .bagio import (
     BagError,
     BagWriter,
@@ -108,6 +108,21 @@ class ReplaySummary:
         )
 
 
+class HealthSink(Protocol):
+    """What replay feeds IMU samples to besides the engine (``ccf fleet``'s health accumulator)."""
+
+    def observe(self, engine: ImuEngine) -> None:
+        """Take every sample ``engine.on_imu`` gets from now on (by wrapping it)."""
+        ...
+
+    def add_block(self, t: Any, gyr: Any, acc: Any, mag: Any, rejected: Any) -> None:
+        """A chunk's IMU samples: stamps (N,) s, gyr and acc (N, 3), paired mag (N, 3) (NaN: none), gated (N,)."""
+        ...
+
+
+_NAN3 = (float('nan'),) * 3
+
+
 class Topics(NamedTuple):
     """The topics replay reads (``mag`` None: none) and writes."""
 
@@ -139,6 +154,7 @@ def replay(
     progress: bool | None = None,
     motion_hint_topic: str | None = None,
     motion_hint: tuple[float, float, float] = (0.01, 0.01, 0.5),
+    health: HealthSink | None = None,
 ) -> ReplaySummary:
     """Replay ``bag_in`` through ``engine`` into a new rosbag2 ``bag_out``.
 
@@ -151,6 +167,9 @@ def replay(
 
     ``motion_hint_topic`` (Odometry or TwistStamped) feeds :meth:`ImuEngine.on_motion_hint` in bag order, as the
     node does: still below ``motion_hint`` = (speed m/s, turn rate rad/s), counting for its timeout (s).
+
+    ``health`` (``ccf fleet``'s :class:`~ccf_ros.fleet.health.HealthAccumulator`) gets every IMU sample the engine
+    gets: a chunk's arrays at once on the bulk path, else sample by sample.
 
     Raises:
         BagError: unreadable input, missing or empty IMU topic, missing ``mag_topic`` with ``mag_required``, output
@@ -168,7 +187,7 @@ def replay(
         if imu_topic is None:
             raise BagError('replay: no IMU topic (pass imu_topic or detect=True)')
         topics = Topics(imu_topic, mag_topic, out_imu_topic, out_bias_topic, mag_required, motion_hint_topic)
-        replayer = _Replayer(reader, writer, engine, bag_in, topics, copy_input, motion_hint)
+        replayer = _Replayer(reader, writer, engine, bag_in, topics, copy_input, motion_hint, health)
         n_out = replayer.run(progress)
     warnings = engine.warnings + replayer.warnings
     if engine.settings.bias_file:
@@ -404,6 +423,7 @@ class _Replayer:
     def __init__(
         self, reader: AnyReader, writer: BagWriter, engine: ImuEngine, bag: str | Path, topics: Topics,
         copy_input: bool, motion_hint: tuple[float, float, float] = (0.01, 0.01, 0.5),
+        health: HealthSink | None = None,
     ) -> None:
         imu_conns = connections_for(reader, topics.imu, msgtype=IMU)
         mag_conns = (
@@ -419,6 +439,7 @@ class _Replayer:
                                  'another topic, --no-mag silences this)')
         self._reader = reader
         self._engine = engine
+        self._health = health
         self._bag = bag
         self._hint = _HintPath(engine, reader, bag, motion_hint)
         hint_conns = connections_for(reader, topics.motion_hint) if topics.motion_hint else []
@@ -453,6 +474,10 @@ class _Replayer:
         n_out = 0
         try:
             bulk = self._bulk()
+            if bulk is None and self._health is not None:
+                self._health.observe(self._engine)  # (before the paths take the engine's on_imu)
+                self._fast = _FastCdrPath(self._engine, self._bag)
+                self._message = _MessagePath(self._engine, self._reader, self._store, self._bag)
             if bulk is not None:
                 for n_o, n_imu in bulk:
                     n_out += n_o
@@ -499,9 +524,36 @@ class _Replayer:
             done = self._bulk_chunk(cols, is_imu[cols.owner], write_records)
             if done is None:  # not all little-endian CDR, or a short message: message by message
                 block = self._entries(cols)
-                answers, n_imu = self._filter(block)
+                answers, n_imu = self._filter_observed(block) if self._health is not None else self._filter(block)
                 done = self._write(block, answers), n_imu
             yield done
+
+    def _filter_observed(self, block: list[_Entry]) -> tuple[list[Any], int]:
+        """:meth:`_filter`, the IMU samples also given to the health sink, as arrays (as the bulk path does)."""
+        assert self._health is not None
+        engine, rows = self._engine, []
+        filt = engine.filter
+        gated = hasattr(filt, 'mag_disturbed')
+        on_imu = engine.on_imu
+
+        def observed(t_s: float, gyr: Vec3, acc: Vec3) -> Output | None:
+            out = on_imu(t_s, gyr, acc)
+            rows.append((t_s, gyr, acc, engine.paired_mag or _NAN3, gated and filt.mag_disturbed))
+            return out
+
+        paths = (self._fast, self._message)
+        for p in paths:
+            p._on_imu = observed
+        try:
+            found = self._filter(block)
+        finally:
+            for p in paths:
+                p._on_imu = on_imu
+        if rows:
+            t, g, a, m, r = zip(*rows, strict=True)
+            self._health.add_block(np.array(t, dtype=float), np.array(g, dtype=float), np.array(a, dtype=float),
+                                   np.array(m, dtype=float), np.array(r, dtype=bool))
+        return found
 
     def _entries(self, cols: Any) -> list[_Entry]:
         """A chunk's messages as :meth:`_blocks` gives them."""
@@ -527,11 +579,29 @@ class _Replayer:
         # The engine sees the same calls, in the same order, with the same floats as message by message.
         vec1: Any = map(tuple, v1.tolist())  # (as tuples, like struct gives them)
         vec2: Any = map(tuple, v2.tolist())
-        for is_imu, t, a, b in zip(imu.tolist(), t_all.tolist(), vec1, vec2, strict=True):
-            if is_imu:
-                add(on_imu(t, a, b))
-            else:
-                on_mag(t, a)
+        health = self._health
+        if health is None:
+            for is_imu, t, a, b in zip(imu.tolist(), t_all.tolist(), vec1, vec2, strict=True):
+                if is_imu:
+                    add(on_imu(t, a, b))
+                else:
+                    on_mag(t, a)
+        else:
+            engine = self._engine
+            filt = engine.filter
+            gated = hasattr(filt, 'mag_disturbed')
+            mags: list[Any] = []
+            rejected: list[bool] = []
+            add_mag, add_rej = mags.append, rejected.append
+            for is_imu, t, a, b in zip(imu.tolist(), t_all.tolist(), vec1, vec2, strict=True):
+                if is_imu:
+                    add(on_imu(t, a, b))
+                    add_mag(engine.paired_mag)
+                    add_rej(gated and filt.mag_disturbed)
+                else:
+                    on_mag(t, a)
+            mag = np.array([m if m is not None else _NAN3 for m in mags], dtype=float).reshape(-1, 3)
+            health.add_block(t_all[ii], v1[ii], v2[ii], mag, np.array(rejected, dtype=bool))
         answered = [k for k, o in enumerate(outs) if o is not None]
         if answered:
             sel = np.array(answered)
@@ -545,8 +615,8 @@ class _Replayer:
         numpy where every message has the same length and header (the usual case), else one by one."""
         imu_id, bias_id = self._outputs.imu.id, self._outputs.bias.id
         m = len(outs)
-        times = [x for t in t_ns.tolist() for x in (t, t)]
-        cids = [imu_id, bias_id] * m
+        times = np.repeat(t_ns, 2)
+        cids = np.tile(np.array([imu_id, bias_id], dtype=np.int64), m)
         lengths = end - start
         rate, lin = outs[0].angular_velocity is not None, outs[0].linear_acceleration is not None
         uniform = ((lengths == lengths[0]).all() and (body == body[0]).all()
