@@ -170,13 +170,14 @@ def test_task_timeout_ends_a_bag_that_hangs_while_reading(fault_bags, tmp_path, 
     import time
 
     import ccf_ros.offline.bagio as bagio
+    from ccf_ros.offline.mcap import McapFile
 
     def hung(*args, **kwargs):
         while True:  # a reader stuck before its first message (a stalled mount, a looping decoder)
             time.sleep(0.01)
-        yield
 
     monkeypatch.setattr(bagio, 'read_messages', hung)
+    monkeypatch.setattr(McapFile, '_chunk_data', hung)
     opts = dataclasses.replace(_opts(tmp_path), task_timeout_s=0.3)
     t0 = time.monotonic()
     r = process_bag(str(fault_bags['clean']), 'hung', opts)
