@@ -1,7 +1,8 @@
 """``ccf fleet`` speed and memory: prints figures (ratios measured in this one run, interleaved).
 
 1. ``ccf fleet run -j 2 --write-bags`` vs a sequential shell loop of ``ccf replay`` over the same >= 20 bags (the
-   BROAD nine, linked, plus simulated bags; simulated only without ../shared).
+   BROAD nine, linked, plus simulated bags; simulated only without ../shared). Before it, the fixed cost of a fleet
+   run: ``ccf fleet run -j 2`` on one bag vs ``ccf replay`` of it (CPU s).
 2. Per core, in one process, on one bag (BROAD 02, else a simulated one): a bare rosbags read of the IMU and
    magnetometer records, the health-only task, the task with ``--write-bags``, ``replay()`` now and ``replay()`` on
    rosbags' own reader and writer (the path before the own MCAP reader), in samples/s.
@@ -79,6 +80,29 @@ def fleet_vs_loop(bags: list[Path], work: Path) -> None:
           f'{loop_s / fleet_s:.2f}x faster; load average at the end {os.getloadavg()[0]:.1f}')
 
 
+def fixed_cost(bag: Path, work: Path) -> None:
+    """What a fleet run costs beyond its bags: ``ccf fleet run -j 2`` on one bag vs ``ccf replay`` of it, CPU s of
+    the child processes (cluster start and stop, version check, tables, report)."""
+    import resource
+
+    def cpu() -> float:
+        r = resource.getrusage(resource.RUSAGE_CHILDREN)
+        return r.ru_utime + r.ru_stime
+
+    one = work / 'one_bag'
+    one.mkdir()
+    (one / bag.name).symlink_to(bag.resolve())
+    c0 = cpu()
+    subprocess.run([str(BIN / 'ccf'), 'replay', str(bag), '-o', str(work / 'one_replay')], check=True,
+                   capture_output=True)
+    c1 = cpu()
+    subprocess.run([str(BIN / 'ccf'), 'fleet', 'run', str(one), '-o', str(work / 'one_fleet'), '-j', '2',
+                    '--write-bags', '--reference', '', '--quiet'], check=True, capture_output=True)
+    c2 = cpu()
+    print(f'one bag ({bag.name}): ccf replay {c1 - c0:.1f} CPU s, ccf fleet run -j 2 --write-bags {c2 - c1:.1f} CPU s '
+          f'(fixed cost of a fleet run {c2 - c1 - (c1 - c0):.1f} CPU s)')
+
+
 def _bare_read(bag: Path) -> int:
     from ccf_ros.offline.bagio import open_bag
 
@@ -98,15 +122,17 @@ def per_core(bag: Path, work: Path, repeats: int) -> None:
     from ccf_ros.offline.replay import replay
 
     merged, strict = engine_settings(build_parser().parse_args(['fleet', 'run', 'x', '-o', 'y']))
-    fast_messages, fast_writer = mcap.fast_messages, mcap.fast_writer
+    fast = mcap.fast_messages, mcap.fast_writer, mcap.fast_batches, mcap.record_writer
 
     def old_replay() -> int:
         mcap.fast_messages = lambda *a: None  # type: ignore[assignment]
         mcap.fast_writer = lambda w: (w.write, lambda: None)  # type: ignore[assignment]
+        mcap.fast_batches = lambda *a: None  # type: ignore[assignment]
+        mcap.record_writer = lambda w: None  # type: ignore[assignment]
         try:
             return replay(bag, work / 'old', make_engine(merged, strict), overwrite=True, progress=False).n_in
         finally:
-            mcap.fast_messages, mcap.fast_writer = fast_messages, fast_writer
+            mcap.fast_messages, mcap.fast_writer, mcap.fast_batches, mcap.record_writer = fast
 
     def new_replay() -> int:
         return replay(bag, work / 'new', make_engine(merged, strict), overwrite=True, progress=False).n_in
@@ -234,6 +260,7 @@ def main() -> None:
             per_core(bag, work, args.repeats)
         if 'fleet' not in skip:
             bags = make_bags(work / 'bags', args.sim_bags)
+            fixed_cost(bags[0], work)
             fleet_vs_loop(bags, work)
         if 'rss' not in skip:
             peak_rss(work, args.big)

@@ -26,7 +26,6 @@ from .core.quaternion import (
     quat_mul_scalar,
     relevel,
     rpy_of,
-    to_xyzw,
 )
 from .frames import IDENTITY, Mat3, apply, is_identity, matmul, transpose
 from .settings import EngineSettings
@@ -68,6 +67,9 @@ class Output(NamedTuple):
     status: int
     angular_velocity: Vec3 | None = None
     linear_acceleration: Vec3 | None = None
+
+
+_new_output = tuple.__new__
 
 
 class ImuEngine:
@@ -319,7 +321,9 @@ class ImuEngine:
             qw, qx, qy, qz = q
             q = (c * qw - s * qz, c * qx - s * qy, c * qy + s * qx, c * qz + s * qw)
         self.n_out += 1
-        return Output(to_xyzw(q), (vr, 0.0, 0.0, 0.0, vp, 0.0, 0.0, 0.0, vy), bias, status, rate, lin)
+        # Output(...) without its generated __new__ (a Python call per sample); q to message order as to_xyzw does.
+        return _new_output(Output, ((q[1], q[2], q[3], q[0]), (vr, 0.0, 0.0, 0.0, vp, 0.0, 0.0, 0.0, vy), bias,
+                                    status, rate, lin))
 
     def _stateless_output(self, t_s: float, gyr: Vec3, acc: Vec3, mag: Vec3 | None) -> Output | None:
         """imu_tools' ``stateless``: the orientation of this sample's accelerometer (+ magnetometer) alone. The filter

@@ -97,6 +97,8 @@ class HealthAccumulator:
     def __init__(self) -> None:
         self._buf: list[tuple[float, Sequence[float], Sequence[float], Any, bool]] = []
         self.add = self._buf.append  # (t_s, gyr, acc, mag or None, mag rejected by the gate)
+        self._parts: list[tuple[np.ndarray, ...]] = []  # add_block's samples not reduced yet
+        self._n_parts = 0
         self.n = 0
         self.t_first = math.nan
         self.t_last = math.nan
@@ -136,6 +138,42 @@ class HealthAccumulator:
         mag = np.array([b[3] if b[3] is not None else NAN3 for b in buf], dtype=float).reshape(-1, 3)
         rejected = np.fromiter((b[4] for b in buf), bool, len(buf))
         buf.clear()
+        self._reduce(t, gyr, acc, mag, rejected)
+
+    def observe(self, engine: Any) -> None:
+        """Route every IMU sample ``engine`` gets through :meth:`add` too (its ``on_imu`` is wrapped, for this
+        engine only), with the paired magnetometer sample and the gate's verdict after the sample."""
+        on_imu = engine.on_imu
+        add, buf, filt = self.add, self._buf, engine.filter
+        gated = hasattr(filt, 'mag_disturbed')
+
+        def observed(t_s: float, gyr: Any, acc: Any) -> Any:
+            out = on_imu(t_s, gyr, acc)
+            add((t_s, gyr, acc, engine.paired_mag, gated and filt.mag_disturbed))
+            if len(buf) >= BLOCK:
+                self.flush()
+            return out
+
+        engine.on_imu = observed
+
+    def add_block(self, t: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, rejected: np.ndarray) -> None:
+        """Samples as arrays: stamps (N,) s, gyr (N, 3) rad/s, acc (N, 3) m/s², paired mag (N, 3) (NaN: none),
+        rejected by the gate (N,); the same metrics as :meth:`add` for each, reduced in the same blocks of
+        :data:`BLOCK` samples (so the figures are equal to the last bit). Do not mix with :meth:`add`."""
+        parts = self._parts
+        parts.append((t, gyr, acc, mag, rejected))
+        self._n_parts += len(t)
+        while self._n_parts >= BLOCK:
+            self._reduce_parts(BLOCK)
+
+    def _reduce_parts(self, n: int) -> None:
+        """Reduce the first ``n`` samples of the blocks given to :meth:`add_block`."""
+        cols = [np.concatenate(c) for c in zip(*self._parts, strict=True)]
+        self._parts = [tuple(c[n:] for c in cols)] if len(cols[0]) > n else []
+        self._n_parts -= min(n, len(cols[0]))
+        self._reduce(*(c[:n] for c in cols))
+
+    def _reduce(self, t: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, rejected: np.ndarray) -> None:
         self._timing(t)
         ok = np.isfinite(gyr).all(axis=1) & np.isfinite(acc).all(axis=1)
         gyr, acc = gyr[ok], acc[ok]
@@ -230,6 +268,8 @@ class HealthAccumulator:
         """The metrics (name -> number, SI units in the names; NaN: not measurable in this bag). ``filt``: the
         filter's figures to include (see :func:`ccf_ros.fleet.task.filter_metrics`)."""
         self.flush()
+        if self._n_parts:
+            self._reduce_parts(self._n_parts)
         nan = math.nan
         out: dict[str, float] = {'samples': float(self.n)}
         nom = self._dt_nominal

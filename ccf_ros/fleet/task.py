@@ -3,16 +3,18 @@ the bag's result file written atomically. The only code that runs on Dask worker
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
+import threading
 import time
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .health import BLOCK, HealthAccumulator, judge
+from .health import HealthAccumulator, judge
 
 __all__ = ['BagTimeout', 'FleetOptions', 'VersionMismatch', 'filter_metrics', 'process_bag', 'result_path']
 
@@ -28,6 +30,11 @@ class VersionMismatch(RuntimeError):
 
 class BagTimeout(RuntimeError):
     """The bag took longer than ``--task-timeout``."""
+
+
+class _TimeUp(BaseException):
+    """What the deadline's timer raises in the task's thread: not an ``Exception``, so no ``except Exception`` on
+    the way (a read guard turning errors into :class:`BagError`) takes it for something else."""
 
 
 @dataclass(frozen=True)
@@ -91,6 +98,26 @@ def _write_first(path: Path, text: str) -> bool:
         tmp.unlink(missing_ok=True)
 
 
+def _publish(new: Path, path: Path) -> None:
+    """Rename the complete bag folder ``new`` to ``path`` atomically, replacing a bag there (an earlier run's, or
+    another attempt's at the same key: the same messages). A folder cannot be renamed over a non-empty one, so the
+    old one is first moved aside under a unique name and removed after."""
+    import shutil
+
+    for _ in range(5):  # (another attempt may publish between our two renames: then again)
+        try:
+            new.rename(path)
+            return
+        except OSError:
+            if not path.exists():
+                raise
+        aside = path.with_name(f'.{path.name}.{uuid.uuid4().hex}.old.partial')
+        with contextlib.suppress(FileNotFoundError):
+            path.rename(aside)
+        shutil.rmtree(aside, ignore_errors=True)
+    raise OSError(f'cannot publish {path}: other attempts keep replacing it')
+
+
 def filter_metrics(engine: Any) -> dict[str, float]:
     """The filter's figures at the end of a bag: NaN resets, restarts, gyro-only share, final bias and its σ."""
     f = engine.filter
@@ -109,29 +136,126 @@ def filter_metrics(engine: Any) -> dict[str, float]:
     }
 
 
-def _observe(engine: Any, health: HealthAccumulator, timeout_s: float) -> None:
-    """Route every IMU sample the engine gets through ``health`` too, and end the bag (:class:`BagTimeout`) once it
-    has run ``timeout_s`` (0: never), checked every block."""
-    deadline = time.monotonic() + timeout_s if timeout_s > 0 else 0.0
-    on_imu = engine.on_imu
-    add, buf, filt = health.add, health._buf, engine.filter
+class _Deadline:
+    """``--task-timeout`` by the clock, at no cost per sample: a timer thread raises :class:`_TimeUp` in the task's
+    thread once ``timeout_s`` passed (``PyThreadState_SetAsyncExc``: delivered at the thread's next Python
+    instruction, so a bag that hangs in Python code anywhere, reading included, ends too; a call blocked inside C,
+    e.g. a read from a dead network mount, ends when that call returns). The task reports it as :class:`BagTimeout`.
+
+    Use as a context manager around the bag's work only: leaving it disarms the timer under a lock, and an
+    exception set but not yet delivered is withdrawn and raised here instead, so none escapes into the code after.
+    """
+
+    def __init__(self, timeout_s: float) -> None:
+        self.timeout_s = timeout_s
+        self._lock = threading.Lock()
+        self._armed = False
+        self._fired = False
+        self._tid = threading.get_ident()
+        self._timer: threading.Timer | None = None
+
+    def __enter__(self) -> _Deadline:
+        if self.timeout_s > 0:
+            self._armed = True
+            self._timer = threading.Timer(self.timeout_s, self._fire)
+            self._timer.daemon = True
+            self._timer.start()
+        return self
+
+    def _fire(self) -> None:
+        with self._lock:
+            if self._armed:
+                self._fired = True
+                _set_async_exc(self._tid, _TimeUp)
+
+    def __exit__(self, *exc: object) -> None:
+        if self._timer is None:
+            return
+        self._timer.cancel()
+        with self._lock:
+            self._armed = False
+            fired = self._fired
+            if fired:
+                _set_async_exc(self._tid, None)  # withdrawn if not delivered yet
+        if fired and not isinstance(exc[1], _TimeUp):
+            raise _TimeUp
+
+    def message(self) -> str:
+        return f'took longer than the task timeout ({self.timeout_s:g} s)'
+
+
+def _set_async_exc(tid: int, exc: type[BaseException] | None) -> None:
+    import ctypes
+
+    ctypes.pythonapi.PyThreadState_SetAsyncExc(ctypes.c_ulong(tid), ctypes.py_object(exc) if exc else None)
+
+
+def _health_bulk(reader: Any, bag: str, engine: Any, health: HealthAccumulator, conns: list[Any],
+                 imu_ids: set[int]) -> bool:
+    """The engine and ``health`` over a single-file MCAP bag a chunk at a time: fields decoded with numpy, the
+    engine fed the same floats in the same order as message by message, ``health`` given arrays per chunk. False
+    (nothing done) where the bag is not such a file; a chunk that is not all little-endian CDR is read message by
+    message."""
+    import numpy as np
+
+    from ..offline.bagio import deserialize, unreadable
+    from ..offline.mcap import McapError, fast_batches
+    from ..offline.messages import stamp_s
+    from ..offline.replay import decode_chunk
+
+    if not reader.is2:
+        return False
+    try:
+        batches = fast_batches(reader, conns)
+    except (McapError, OSError) as err:
+        raise unreadable(bag, err) from err
+    if batches is None:
+        return False
+    is_imu = np.array([c.id in imu_ids for c in conns])
+    on_imu, on_mag, filt = engine.on_imu, engine.on_mag, engine.filter
     gated = hasattr(filt, 'mag_disturbed')
+    nan3 = (math.nan, math.nan, math.nan)
+    while True:
+        try:
+            cols = next(batches)
+        except StopIteration:
+            return True
+        except Exception as err:  # a malformed chunk
+            raise unreadable(bag, err) from err
+        imu = is_imu[cols.owner]
+        dec = decode_chunk(cols, imu)
+        if dec is not None:
+            _, ii, _, t_all, v1, v2 = dec
+            vec1: Any = map(tuple, v1.tolist())
+            vec2: Any = map(tuple, v2.tolist())
+        else:  # message by message (rosbags deserializes each)
+            t_all, v1, v2 = np.empty(len(imu)), np.zeros((len(imu), 3)), np.zeros((len(imu), 3))
+            ii = np.flatnonzero(imu)
+            for k, (a, b) in enumerate(zip(cols.start.tolist(), cols.end.tolist(), strict=True)):
+                msg = deserialize(reader, cols.buf[a:b], conns[int(cols.owner[k])].msgtype, bag)
+                t_all[k] = stamp_s(msg.header)
+                v = msg.angular_velocity if imu[k] else msg.magnetic_field
+                v1[k] = (v.x, v.y, v.z)
+                if imu[k]:
+                    v = msg.linear_acceleration
+                    v2[k] = (v.x, v.y, v.z)
+            vec1, vec2 = map(tuple, v1.tolist()), map(tuple, v2.tolist())
+        mags: list[Any] = []
+        rejected: list[bool] = []
+        add_mag, add_rej = mags.append, rejected.append
+        for flag, t, a, b in zip(imu.tolist(), t_all.tolist(), vec1, vec2, strict=True):
+            if flag:
+                on_imu(t, a, b)
+                add_mag(engine.paired_mag)
+                add_rej(gated and filt.mag_disturbed)
+            else:
+                on_mag(t, a)
+        mag = np.array([m if m is not None else nan3 for m in mags], dtype=float).reshape(-1, 3)
+        health.add_block(t_all[ii], v1[ii], v2[ii], mag, np.array(rejected, dtype=bool))
 
-    def observed(t_s: float, gyr: Any, acc: Any) -> Any:
-        out = on_imu(t_s, gyr, acc)
-        add((t_s, gyr, acc, engine.paired_mag, gated and filt.mag_disturbed))
-        if len(buf) >= BLOCK:
-            health.flush()
-            if deadline and time.monotonic() > deadline:
-                raise BagTimeout(f'took longer than the task timeout ({timeout_s:g} s)')
-        return out
 
-    setattr(engine, 'on_imu', observed)  # noqa: B010 - an instance attribute over the method, for this engine only
-
-
-
-def _health_only(bag: str, engine: Any, opts: FleetOptions) -> list[str]:
-    """The engine over the bag without an output bag; returns warnings."""
+def _health_only(bag: str, engine: Any, opts: FleetOptions, health: HealthAccumulator | None = None) -> list[str]:
+    """The engine (and ``health``) over the bag without an output bag; returns warnings."""
     from ..errors import BagError
     from ..offline.bagio import connections_for, deserialize, detect_topics, in_bag_order, open_bag, read_messages
     from ..offline.fastcdr import LITTLE_ENDIAN_CDR, read_imu, read_mag
@@ -148,9 +272,14 @@ def _health_only(bag: str, engine: Any, opts: FleetOptions) -> list[str]:
         if mag_t and not sum(c.msgcount for c in mag_conns) and getattr(engine.filter.params, 'use_mag', True):
             warnings.append(f'no {mag_t} in the bag: 6-D')
         imu_ids = {c.id for c in imu_conns}
+        conns = in_bag_order(reader, imu_conns + mag_conns)
+        if health is not None and _health_bulk(reader, bag, engine, health, conns, imu_ids):
+            return warnings
+        if health is not None:
+            health.observe(engine)
         on_imu, on_mag = engine.on_imu, engine.on_mag
         ros2 = reader.is2
-        for conn, _, raw in read_messages(reader, bag, in_bag_order(reader, imu_conns + mag_conns), fast=True):
+        for conn, _, raw in read_messages(reader, bag, conns, fast=True):
             if ros2 and raw[:2] == LITTLE_ENDIAN_CDR:
                 if conn.id in imu_ids:
                     t, _, g, a = read_imu(raw)
@@ -193,26 +322,32 @@ def _run(bag: str, key: str, opts: FleetOptions) -> dict[str, Any]:
 
     engine = make_engine(opts.settings, opts.strict)
     health = HealthAccumulator()
-    _observe(engine, health, opts.task_timeout_s)
     if opts.slow_bag_s:
         time.sleep(opts.slow_bag_s)
     has_ref = bool(opts.reference) and _has_reference(bag, opts.reference)
     record: dict[str, Any] = {}
     if opts.write_bags or has_ref:
-        out_bag = output_bag_path(opts.out, bag, key)
-        summary = replay(bag, out_bag, engine, imu_topic=opts.imu_topic, mag_topic=opts.mag_topic, detect=True,
-                         no_mag=opts.no_mag, overwrite=True, progress=False)
-        warnings = summary.warnings
-        if has_ref:
-            record['accuracy'] = _accuracy(out_bag, bag, opts)
-        if opts.write_bags:
-            record['output'] = str(out_bag)
-        else:
-            import shutil
+        import shutil
 
-            shutil.rmtree(out_bag, ignore_errors=True)
+        out_bag = output_bag_path(opts.out, bag, key)
+        # This attempt's own staging folder: another attempt at the same bag (a retry on another worker while a
+        # lost one still runs) stages elsewhere. The bag is named as its final self inside (its storage file too).
+        stage = out_bag.with_name(f'.{out_bag.name}.{uuid.uuid4().hex}.partial')
+        try:
+            stage.mkdir(parents=True)
+            done = stage / out_bag.name
+            summary = replay(bag, done, engine, imu_topic=opts.imu_topic, mag_topic=opts.mag_topic, detect=True,
+                             no_mag=opts.no_mag, overwrite=False, progress=False, health=health)
+            warnings = summary.warnings
+            if has_ref:
+                record['accuracy'] = _accuracy(done, bag, opts)
+            if opts.write_bags:
+                _publish(done, out_bag)
+                record['output'] = str(out_bag)
+        finally:
+            shutil.rmtree(stage, ignore_errors=True)
     else:
-        warnings = _health_only(bag, engine, opts)
+        warnings = _health_only(bag, engine, opts, health)
     metrics = health.result(filter_metrics(engine))
     health_level, flags = judge(metrics)
     return {'samples': int(metrics['samples']), 'health': health_level, 'flags': flags, 'metrics': metrics,
@@ -231,8 +366,13 @@ def process_bag(bag: str, key: str, opts: FleetOptions) -> dict[str, Any]:
         raise VersionMismatch(f'worker has ccf_ros {__version__}, the driver {opts.version}: install the same version '
                               'on every worker')
     t0 = time.perf_counter()
+    deadline = _Deadline(opts.task_timeout_s)
     try:
-        body = _run(bag, key, opts)
+        try:
+            with deadline:
+                body = _run(bag, key, opts)
+        except _TimeUp:
+            raise BagTimeout(deadline.message()) from None
         result = {'bag': bag, 'key': key, 'status': 'ok', **body}
     except Exception as err:  # a bad bag, or the filter raising: this bag fails, the others go on
         msg = ' '.join(str(err).split()) or type(err).__name__

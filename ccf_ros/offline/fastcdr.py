@@ -11,6 +11,7 @@ from __future__ import annotations
 import functools
 import struct
 from collections.abc import Sequence
+from typing import Any
 
 from ..frames import rotate_covariance
 from .messages import seconds
@@ -113,3 +114,31 @@ def _frame_field(frame_id: bytes) -> tuple[bytes, int]:
     end = 16 + n  # after the string's NUL, in the buffer (data start at 4)
     new_off = ((end - 4 + 7) & ~7) + 4
     return struct.pack('<I', n) + frame_id + b'\x00' * (1 + new_off - end), new_off
+
+
+# --- many messages at once (numpy): the fields of :func:`read_imu` and :func:`read_mag` for a chunk's messages ---
+
+def _gather(u8: Any, at: Any, size: int, dtype: str) -> Any:
+    """``size`` bytes at each offset ``at`` (N,) of ``u8``, as (N, size / itemsize) of ``dtype``."""
+    import numpy as np
+
+    return u8[at[:, None] + np.arange(size)].view(dtype)
+
+
+def stamped_columns(u8: Any, start: Any, end: Any, fields_end: int) -> tuple[Any, Any] | None:
+    """Stamps (s, by :func:`~ccf_ros.offline.messages.seconds`' rule) and body offsets (from each message's start)
+    of little-endian CDR messages starting with a Header, at ``start`` (N,) in ``u8``; None if one is not
+    little-endian or is shorter than ``fields_end`` bytes after its body offset (the message path says what)."""
+    import numpy as np
+
+    if not len(start):
+        z = np.zeros(0)
+        return z, z.astype(np.int64)
+    if (u8[start] != 0).any() or (u8[start + 1] != 1).any() or (end - start < 16).any():
+        return None
+    head = _gather(u8, start + 4, 12, '<u4')
+    sec, nsec, n = head[:, 0].view('<i4').astype(np.float64), head[:, 1].astype(np.float64), head[:, 2]
+    body = ((12 + n.astype(np.int64) + 7) & ~7) + 4
+    if (start + body + fields_end > end).any():
+        return None
+    return sec + nsec * 1e-9, body

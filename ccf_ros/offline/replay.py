@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple, Protocol, TypeVar
 
 import numpy as np
 
-from ..engine import ImuEngine, Output
+from ..engine import ImuEngine, Output, Vec3
 from .bagio import (
     BagError,
     BagWriter,
@@ -41,13 +41,17 @@ from .bagio import (
     unreadable,
 )
 from .fastcdr import (
+    ANGULAR_VELOCITY,
+    LINEAR_ACCELERATION,
     LITTLE_ENDIAN_CDR,
+    _gather,
     frame_id,
     patch_imu,
     patch_imu_vectors,
     read_imu,
     read_mag,
     reframe_imu,
+    stamped_columns,
     vector3_stamped,
 )
 from .messages import fill_imu, reframe_msg, stamp_s
@@ -60,6 +64,11 @@ if TYPE_CHECKING:  # rosbags is imported when a bag is opened, not with this mod
 IMU = 'sensor_msgs/msg/Imu'
 MAGNETIC_FIELD = 'sensor_msgs/msg/MagneticField'
 VECTOR3_STAMPED = 'geometry_msgs/msg/Vector3Stamped'
+
+#: An MCAP message record's header: opcode 0x05, record length, channel id, sequence, log and publish time (ns).
+_RECORD_HEAD = struct.Struct('<BQHIQQ')
+_RECORD_DTYPE = np.dtype([('op', 'u1'), ('length', '<u8'), ('cid', '<u2'), ('seq', '<u4'), ('t', '<u8'),
+                          ('t_pub', '<u8')])
 
 #: Messages read before the filter runs over them and their answers are written. The filter sees the same calls in
 #: the same order as message by message, but runs in a tight loop.
@@ -99,6 +108,21 @@ class ReplaySummary:
         )
 
 
+class HealthSink(Protocol):
+    """What replay feeds IMU samples to besides the engine (``ccf fleet``'s health accumulator)."""
+
+    def observe(self, engine: ImuEngine) -> None:
+        """Take every sample ``engine.on_imu`` gets from now on (by wrapping it)."""
+        ...
+
+    def add_block(self, t: Any, gyr: Any, acc: Any, mag: Any, rejected: Any) -> None:
+        """A chunk's IMU samples: stamps (N,) s, gyr and acc (N, 3), paired mag (N, 3) (NaN: none), gated (N,)."""
+        ...
+
+
+_NAN3 = (float('nan'),) * 3
+
+
 class Topics(NamedTuple):
     """The topics replay reads (``mag`` None: none) and writes."""
 
@@ -130,6 +154,7 @@ def replay(
     progress: bool | None = None,
     motion_hint_topic: str | None = None,
     motion_hint: tuple[float, float, float] = (0.01, 0.01, 0.5),
+    health: HealthSink | None = None,
 ) -> ReplaySummary:
     """Replay ``bag_in`` through ``engine`` into a new rosbag2 ``bag_out``.
 
@@ -142,6 +167,9 @@ def replay(
 
     ``motion_hint_topic`` (Odometry or TwistStamped) feeds :meth:`ImuEngine.on_motion_hint` in bag order, as the
     node does: still below ``motion_hint`` = (speed m/s, turn rate rad/s), counting for its timeout (s).
+
+    ``health`` (``ccf fleet``'s :class:`~ccf_ros.fleet.health.HealthAccumulator`) gets every IMU sample the engine
+    gets: a chunk's arrays at once on the bulk path, else sample by sample.
 
     Raises:
         BagError: unreadable input, missing or empty IMU topic, missing ``mag_topic`` with ``mag_required``, output
@@ -159,7 +187,7 @@ def replay(
         if imu_topic is None:
             raise BagError('replay: no IMU topic (pass imu_topic or detect=True)')
         topics = Topics(imu_topic, mag_topic, out_imu_topic, out_bias_topic, mag_required, motion_hint_topic)
-        replayer = _Replayer(reader, writer, engine, bag_in, topics, copy_input, motion_hint)
+        replayer = _Replayer(reader, writer, engine, bag_in, topics, copy_input, motion_hint, health)
         n_out = replayer.run(progress)
     warnings = engine.warnings + replayer.warnings
     if engine.settings.bias_file:
@@ -362,6 +390,29 @@ ODOMETRY, TWIST_STAMPED = 'nav_msgs/msg/Odometry', 'geometry_msgs/msg/TwistStamp
 _Entry = tuple[Kind, Any, int, Any]
 
 
+def decode_chunk(cols: Any, imu: Any) -> tuple[Any, Any, Any, Any, Any, Any] | None:
+    """A chunk's IMU and magnetometer messages (``imu`` (N,) bool: which are IMU; :class:`~ccf_ros.offline.mcap._Columns`)
+    decoded with numpy as :func:`read_imu` and :func:`read_mag` decode one: the bytes ``u8``, the IMU messages'
+    indices (M,) and body offsets (M,), stamps ``t`` (N,) s, and (N, 3) ``v1`` (rate, or field) and ``v2``
+    (acceleration; 0 for a magnetometer). None if a message is not little-endian CDR or too short."""
+    u8 = np.frombuffer(cols.buf, dtype=np.uint8)
+    ii, mi = np.flatnonzero(imu), np.flatnonzero(~imu)
+    imu_cols = stamped_columns(u8, cols.start[ii], cols.end[ii], LINEAR_ACCELERATION + 24)
+    mag_cols = stamped_columns(u8, cols.start[mi], cols.end[mi], 24)
+    if imu_cols is None or mag_cols is None:
+        return None
+    (t_imu, body), (t_mag, mag_body) = imu_cols, mag_cols
+    n = len(imu)
+    t_all = np.empty(n)
+    v1, v2 = np.zeros((n, 3)), np.zeros((n, 3))
+    t_all[ii], t_all[mi] = t_imu, t_mag
+    at = cols.start[ii] + body
+    v1[ii] = _gather(u8, at + ANGULAR_VELOCITY, 24, '<f8')
+    v2[ii] = _gather(u8, at + LINEAR_ACCELERATION, 24, '<f8')
+    v1[mi] = _gather(u8, cols.start[mi] + mag_body, 24, '<f8')
+    return u8, ii, body, t_all, v1, v2
+
+
 class _Replayer:
     """The message loop of :func:`replay`: reads the input in blocks, feeds the engine, writes the output.
 
@@ -372,6 +423,7 @@ class _Replayer:
     def __init__(
         self, reader: AnyReader, writer: BagWriter, engine: ImuEngine, bag: str | Path, topics: Topics,
         copy_input: bool, motion_hint: tuple[float, float, float] = (0.01, 0.01, 0.5),
+        health: HealthSink | None = None,
     ) -> None:
         imu_conns = connections_for(reader, topics.imu, msgtype=IMU)
         mag_conns = (
@@ -386,6 +438,8 @@ class _Replayer:
             self.warnings.append(f'no {topics.mag} in the bag: 6-D, heading relative to the start (--mag-topic names '
                                  'another topic, --no-mag silences this)')
         self._reader = reader
+        self._engine = engine
+        self._health = health
         self._bag = bag
         self._hint = _HintPath(engine, reader, bag, motion_hint)
         hint_conns = connections_for(reader, topics.motion_hint) if topics.motion_hint else []
@@ -419,6 +473,16 @@ class _Replayer:
         )
         n_out = 0
         try:
+            bulk = self._bulk()
+            if bulk is None and self._health is not None:
+                self._health.observe(self._engine)  # (before the paths take the engine's on_imu)
+                self._fast = _FastCdrPath(self._engine, self._bag)
+                self._message = _MessagePath(self._engine, self._reader, self._store, self._bag)
+            if bulk is not None:
+                for n_o, n_imu in bulk:
+                    n_out += n_o
+                    bar.update(n_imu)
+                return n_out
             for block in self._blocks():
                 answers, n_imu = self._filter(block)
                 n_out += self._write(block, answers)
@@ -426,6 +490,169 @@ class _Replayer:
         finally:
             bar.close()
         return n_out
+
+    def _bulk(self) -> Iterator[tuple[int, int]] | None:
+        """The bulk path, where it applies: a single-file MCAP input read a chunk at a time (:func:`fast_batches`),
+        the output's records framed with numpy from the input's bytes (:func:`record_writer`); nothing to copy, no
+        motion hint, no output frame, no state file waiting for the sensor's frame_id. Yields (answers, IMU samples)
+        per chunk; None where it does not apply."""
+        if (self._outputs.copies or not self._reader.is2 or self._fast._reframe or self._hint.msgtype
+                or self._engine.wants_sensor_frame):
+            return None
+        from .mcap import McapError, fast_batches, record_writer
+
+        write_records = record_writer(self._outputs.writer.writer)
+        if write_records is None:
+            return None
+        try:
+            batches = fast_batches(self._reader, self._inputs)
+        except (McapError, OSError) as err:
+            raise unreadable(self._bag, err) from err
+        if batches is None:
+            return None
+        return self._bulk_run(batches, write_records)
+
+    def _bulk_run(self, batches: Iterator[Any], write_records: Any) -> Iterator[tuple[int, int]]:
+        is_imu = np.array([self._kinds[c.id] is _IMU for c in self._inputs])
+        while True:
+            try:
+                cols = next(batches)
+            except StopIteration:
+                return
+            except Exception as err:  # a malformed chunk (McapError, zstd/lz4 errors, a short file)
+                raise unreadable(self._bag, err) from err
+            done = self._bulk_chunk(cols, is_imu[cols.owner], write_records)
+            if done is None:  # not all little-endian CDR, or a short message: message by message
+                block = self._entries(cols)
+                answers, n_imu = self._filter_observed(block) if self._health is not None else self._filter(block)
+                done = self._write(block, answers), n_imu
+            yield done
+
+    def _filter_observed(self, block: list[_Entry]) -> tuple[list[Any], int]:
+        """:meth:`_filter`, the IMU samples also given to the health sink, as arrays (as the bulk path does)."""
+        assert self._health is not None
+        engine, rows = self._engine, []
+        filt = engine.filter
+        gated = hasattr(filt, 'mag_disturbed')
+        on_imu = engine.on_imu
+
+        def observed(t_s: float, gyr: Vec3, acc: Vec3) -> Output | None:
+            out = on_imu(t_s, gyr, acc)
+            rows.append((t_s, gyr, acc, engine.paired_mag or _NAN3, gated and filt.mag_disturbed))
+            return out
+
+        paths = (self._fast, self._message)
+        for p in paths:
+            p._on_imu = observed
+        try:
+            found = self._filter(block)
+        finally:
+            for p in paths:
+                p._on_imu = on_imu
+        if rows:
+            t, g, a, m, r = zip(*rows, strict=True)
+            self._health.add_block(np.array(t, dtype=float), np.array(g, dtype=float), np.array(a, dtype=float),
+                                   np.array(m, dtype=float), np.array(r, dtype=bool))
+        return found
+
+    def _entries(self, cols: Any) -> list[_Entry]:
+        """A chunk's messages as :meth:`_blocks` gives them."""
+        fast_path, message_path, kinds = self._fast, self._message, self._kinds
+        buf = cols.buf
+        out: list[_Entry] = []
+        for k, t, a, b in zip(cols.owner.tolist(), cols.t_ns.tolist(), cols.start.tolist(), cols.end.tolist(),
+                              strict=True):
+            raw = buf[a:b]
+            out.append((kinds[self._inputs[k].id], fast_path if raw[:2] == LITTLE_ENDIAN_CDR else message_path, t, raw))
+        return out
+
+    def _bulk_chunk(self, cols: Any, imu: Any, write_records: Any) -> tuple[int, int] | None:
+        """One chunk's messages through the engine, in order, and its answers written; (answers, IMU samples), or
+        None if the chunk needs the message path (nothing done then)."""
+        dec = decode_chunk(cols, imu)
+        if dec is None:
+            return None
+        u8, ii, body, t_all, v1, v2 = dec
+        on_imu, on_mag = self._engine.on_imu, self._engine.on_mag
+        outs: list[Output | None] = []
+        add = outs.append
+        # The engine sees the same calls, in the same order, with the same floats as message by message.
+        vec1: Any = map(tuple, v1.tolist())  # (as tuples, like struct gives them)
+        vec2: Any = map(tuple, v2.tolist())
+        health = self._health
+        if health is None:
+            for is_imu, t, a, b in zip(imu.tolist(), t_all.tolist(), vec1, vec2, strict=True):
+                if is_imu:
+                    add(on_imu(t, a, b))
+                else:
+                    on_mag(t, a)
+        else:
+            engine = self._engine
+            filt = engine.filter
+            gated = hasattr(filt, 'mag_disturbed')
+            mags: list[Any] = []
+            rejected: list[bool] = []
+            add_mag, add_rej = mags.append, rejected.append
+            for is_imu, t, a, b in zip(imu.tolist(), t_all.tolist(), vec1, vec2, strict=True):
+                if is_imu:
+                    add(on_imu(t, a, b))
+                    add_mag(engine.paired_mag)
+                    add_rej(gated and filt.mag_disturbed)
+                else:
+                    on_mag(t, a)
+            mag = np.array([m if m is not None else _NAN3 for m in mags], dtype=float).reshape(-1, 3)
+            health.add_block(t_all[ii], v1[ii], v2[ii], mag, np.array(rejected, dtype=bool))
+        answered = [k for k, o in enumerate(outs) if o is not None]
+        if answered:
+            sel = np.array(answered)
+            with self._outputs.writer.guarded():  # (its file-system errors are BagError)
+                write_records(*self._records(u8, cols.start[ii[sel]], cols.end[ii[sel]], body[sel],
+                                             cols.t_ns[ii[sel]], [outs[k] for k in answered]))
+        return len(answered), len(ii)
+
+    def _records(self, u8: Any, start: Any, end: Any, body: Any, t_ns: Any, outs: list[Any]) -> tuple[Any, ...]:
+        """The framed MCAP records of the answers (Imu, bias, Imu, bias, ...): the input Imu's bytes patched with
+        numpy where every message has the same length and header (the usual case), else one by one."""
+        imu_id, bias_id = self._outputs.imu.id, self._outputs.bias.id
+        m = len(outs)
+        times = np.repeat(t_ns, 2)
+        cids = np.tile(np.array([imu_id, bias_id], dtype=np.int64), m)
+        lengths = end - start
+        rate, lin = outs[0].angular_velocity is not None, outs[0].linear_acceleration is not None
+        uniform = ((lengths == lengths[0]).all() and (body == body[0]).all()
+                   and all((o.angular_velocity is not None) == rate and (o.linear_acceleration is not None) == lin
+                           for o in outs))
+        if not uniform:
+            parts: list[Any] = []
+            sizes: list[int] = []
+            for s, e, off, t, out in zip(start.tolist(), end.tolist(), body.tolist(), t_ns.tolist(), outs,
+                                         strict=True):
+                imu, bias = self._fast.serialize((u8[s:e].tobytes(), out, off))
+                for cid, data in ((imu_id, imu), (bias_id, bias)):
+                    parts += (_RECORD_HEAD.pack(0x05, 22 + len(data), cid, 0, t, t), data)
+                    sizes.append(31 + len(data))
+            return b''.join(parts), cids, times, sizes
+        size, off = int(lengths[0]), int(body[0])
+        rows = u8[start[:, None] + np.arange(size)]
+        rows[:, off:off + 104] = np.array([o.orientation_xyzw + o.covariance for o in outs], dtype='<f8').view(np.uint8)
+        if rate:
+            rows[:, off + ANGULAR_VELOCITY:off + ANGULAR_VELOCITY + 24] = np.array(
+                [o.angular_velocity for o in outs], dtype='<f8').view(np.uint8)
+        if lin:
+            rows[:, off + LINEAR_ACCELERATION:off + LINEAR_ACCELERATION + 24] = np.array(
+                [o.linear_acceleration for o in outs], dtype='<f8').view(np.uint8)
+        r_imu, r_bias = 31 + size, 31 + off + 24
+        rec = np.empty((m, r_imu + r_bias), dtype=np.uint8)
+        head = np.zeros(m, dtype=_RECORD_DTYPE)
+        head['op'], head['t'], head['t_pub'] = 0x05, t_ns, t_ns
+        head['length'], head['cid'] = 22 + size, imu_id
+        rec[:, :31] = head.view(np.uint8).reshape(m, 31)
+        rec[:, 31:r_imu] = rows
+        head['length'], head['cid'] = 22 + off + 24, bias_id
+        rec[:, r_imu:r_imu + 31] = head.view(np.uint8).reshape(m, 31)
+        rec[:, r_imu + 31:r_imu + 31 + off] = rows[:, :off]
+        rec[:, r_imu + 31 + off:] = np.array([o.bias for o in outs], dtype='<f8').view(np.uint8)
+        return rec.reshape(-1), cids, times, np.tile(np.array([r_imu, r_bias], dtype=np.int64), m)
 
     def _blocks(self) -> Iterator[list[_Entry]]:
         """The input's messages in bag order, in blocks of about :data:`BLOCK_SIZE` entries: a message to copy, a
