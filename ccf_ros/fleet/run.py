@@ -12,6 +12,7 @@ import io
 import json
 import math
 import os
+import socket
 import sys
 import time
 from collections.abc import Iterator
@@ -73,11 +74,30 @@ def _need_dask() -> None:
         raise CcfError("ccf fleet needs Dask: pip install 'ccf_ros[fleet]' (or: pip install 'dask[distributed]')")
 
 
+def _probe(scheduler: str) -> None:
+    """A plain TCP connect to a ``tcp://HOST:PORT`` scheduler first: a refused or unroutable address fails at once,
+    before Dask is imported (Dask's client retries a refused connection until its timeout, and importing it takes
+    seconds on a loaded machine: together they can pass the 10 s the command promises). Other schemes go to Dask."""
+    scheme, sep, rest = scheduler.partition('://')
+    if not sep:
+        scheme, rest = 'tcp', scheduler
+    host, _, port = rest.rstrip('/').rpartition(':')
+    if scheme != 'tcp' or not host or not port.isdigit():
+        return
+    try:
+        socket.create_connection((host.strip('[]'), int(port)), timeout=CONNECT_TIMEOUT_S).close()
+    except OSError as err:
+        raise SchedulerUnreachable(f'cannot reach the Dask scheduler at {scheduler}: {type(err).__name__}: '
+                                   f'{" ".join(str(err).split())[:200]}') from err
+
+
 @contextlib.contextmanager
 def connect(scheduler: str | None, jobs: int) -> Iterator[Any]:
     """A Dask client: on ``scheduler`` (address) if given, else on a local cluster of ``jobs`` single-threaded
     worker processes (0: one per core) bound to 127.0.0.1, started and stopped here."""
     _need_dask()
+    if scheduler:
+        _probe(scheduler)
     import logging
 
     from distributed import Client, LocalCluster
