@@ -590,6 +590,12 @@ class CcfNode(Node):
     def _on_timer(self) -> None:
         """Release held samples whose magnetometer sample did not come within HOLD_S (lost, late or none), publish
         diagnostics once a second, and set the next wake-up: the earlier of the two."""
+        if self.sync.holding:
+            # rclpy's executor hands out a node's ready timers before its ready subscriptions (Jazzy, rclpy 7:
+            # executors.py, _wait_for_ready_callbacks): after the process was descheduled for more than HOLD_S, this
+            # timer runs while the magnetometer sample a held IMU sample waits for is already in the reader queue.
+            # Taken first, it pairs as in replay; only what is still missing times out.
+            self._take_mags()
         now = time.monotonic()
         self._answer_all(self.sync.expire(now))
         if self._hint_topic and self.sub_hint is None:
