@@ -67,9 +67,10 @@ from .compat import (
     tf_transform,
 )
 from .core.base import ANSWERED_BELOW
+from .core.pairing import MagPairer
 from .core.quaternion import from_xyzw, rpy_of
 from .core.registry import FILTERS
-from .engine import ImuEngine, Output
+from .engine import JUMP_BACK_RESET_S, ImuEngine, Output
 from .frames import apply
 from .node_support import (
     PER_AXIS,
@@ -95,6 +96,8 @@ from .offline.messages import fill_imu, reframe_msg, stamp_s
 from .settings import DESCRIPTIONS, build
 from .sync import HOLD_S, ImuMagSync
 
+#: A magnetometer stamp up to this much after an IMU stamp pairs with it (MagPairer's default tolerance_s), s.
+MAG_TOLERANCE_S = MagPairer().tolerance_s
 #: Depth of the output publishers (reliable, volatile: the rclpy defaults).
 OUTPUT_DEPTH = 10
 #: QoS of /tf, as tf2_ros' TransformBroadcaster (DynamicBroadcasterQoS: reliable, volatile, keep last 100).
@@ -236,6 +239,8 @@ class CcfNode(Node):
         self.stats = InputStats()
         self._noticed: set[str] = set()
         self._last_bias_t = -math.inf
+        #: stamp of the IMU sample processed last (+ the pairer's tolerance): a magnetometer sample up to it is late
+        self._t_imu_done = -math.inf
         self._last_warn = 0.0
         if not self._callbacks_added:
             self._callbacks_added = True
@@ -549,11 +554,22 @@ class CcfNode(Node):
             self._warn_throttled(f'unreadable magnetometer message ({len(data)} bytes) dropped: {err}')
             return
         now = time.monotonic()
+        if t <= self._t_imu_done:
+            self._mag_late(t)
         self.engine.on_mag(t, field)
         self.stats.on_mag(now)
         released = self.sync.on_mag(t, now)
         if released:
             self._answer_all(released)
+
+    def _mag_late(self, t: float) -> None:
+        """A magnetometer sample comes after the IMU sample with its stamp (or a later one) was processed: replay
+        would have paired it with that one (it timed out, or the sample overtook it over DDS). Counted; at debug
+        level logged with where it landed, so that a test can rebuild the node's order exactly."""
+        if t < self._t_imu_done - JUMP_BACK_RESET_S:
+            return  # the clock jumped back (bag loop): a new timeline, not a late sample
+        self.stats.n_mag_late += 1
+        self.get_logger().debug(f'late magnetometer sample t={t!r} after IMU sample {self.engine.n_in}')
 
     def _imu(self, data: bytes) -> None:
         now = time.monotonic()
@@ -626,6 +642,7 @@ class CcfNode(Node):
         if self.engine.wants_sensor_frame:
             self.engine.set_sensor_frame(imu_header(data)[2] if isinstance(data, bytes) else data.header.frame_id)
         out = self.engine.on_imu(t, gyr, acc)
+        self._t_imu_done = t + MAG_TOLERANCE_S
         if out is None:
             self._warn_throttled(f'sample at t={t:.6f} s skipped: no orientation yet (no valid accelerometer sample)')
             return
@@ -743,6 +760,7 @@ class CcfNode(Node):
         self._answer_all(self.sync.flush(time.monotonic()))
         self.engine.reset()
         self.sync.reset()
+        self._t_imu_done = -math.inf
         resp.success = True
         resp.message = 'filter reset; re-initialising from the next sample with a valid accelerometer'
         self.get_logger().info(resp.message)
@@ -814,6 +832,7 @@ class CcfLifecycleNode(LifecycleNodeMixin, CcfNode):
         self.save_state()  # before the estimate is dropped
         self.engine.reset()
         self.sync.reset()
+        self._t_imu_done = -math.inf
         self.stats = InputStats()
         self._configured = False
         return TransitionCallbackReturn.SUCCESS
