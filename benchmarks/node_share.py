@@ -64,9 +64,19 @@ def main() -> None:
         stats['node'] = self
 
     CcfNode.__init__ = init
+    profile_out = os.environ.get('CCF_PROFILE_OUT')  # a cProfile of the whole node (where a wake-up's CPU goes)
+    profiler = None
+    if profile_out:
+        import cProfile
+
+        profiler = cProfile.Profile()
+        profiler.enable()
     try:
         node_module.main()
     finally:
+        if profiler is not None and profile_out:
+            profiler.disable()
+            profiler.dump_stats(profile_out)
         out = os.environ.get('CCF_SHARE_OUT')
         node = stats.get('node')
         if out and node is not None:

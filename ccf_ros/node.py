@@ -523,10 +523,11 @@ class CcfNode(Node):
         """
         take_imu = self._take_imu
         for _ in range(self.DRAIN_MAX):
-            self._take_mags()
             imu = take_imu()
             if imu is None:
-                return
+                return  # (no magnetometer take first: at low rates every take here finds nothing, and costs)
+            # Magnetometer samples that arrived by now go first (as if the IMU sample had been taken after them).
+            self._take_mags()
             self._imu(imu)
 
     @staticmethod
@@ -726,10 +727,12 @@ class CcfNode(Node):
 
     def _bias_due(self, t: float) -> bool:
         """imu/gyro_bias at up to gyro_bias_rate_hz, by the filter's clock ``t`` (s: the stamps, or constant_dt's
-        clock when the stamps are not used); a clock going back publishes at once."""
+        clock when the stamps are not used); a clock going back publishes at once. Only while someone subscribes:
+        a DDS write costs as much as the rest of a message at 200 Hz, and a volatile topic gives a later subscriber
+        nothing from before anyway (the cadence is kept either way)."""
         if t - self._last_bias_t >= self._bias_period or t < self._last_bias_t:
             self._last_bias_t = t
-            return True
+            return self.pub_bias.get_subscription_count() > 0
         return False
 
     def _warn_throttled(self, text: str) -> None:
