@@ -40,14 +40,21 @@ from rcl_interfaces.msg import (
     SetParametersResult,
 )
 from rclpy.clock import Clock, ClockType
-from rclpy.event_handler import PublisherEventCallbacks
+from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.lifecycle import LifecycleNodeMixin, LifecycleState, TransitionCallbackReturn
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
-from rclpy.qos import HistoryPolicy, QoSPolicyKind, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    QoSPolicyKind,
+    QoSProfile,
+    ReliabilityPolicy,
+    qos_profile_sensor_data,
+)
 from rclpy.qos_overriding_options import InvalidQosOverridesError, QoSOverridingOptions
 from rclpy.serialization import deserialize_message
 from rclpy.subscription import Subscription
@@ -121,6 +128,20 @@ def input_qos(reliability: str, depth: int) -> QoSProfile:
         reliability=ReliabilityPolicy.BEST_EFFORT if reliability == 'best_effort' else ReliabilityPolicy.RELIABLE,
         durability=qos_profile_sensor_data.durability,
     )
+
+
+def endpoint_mismatch(info: Any, msg_type: str, requested: QoSProfile, offered: QoSProfile | None = None) -> str:
+    """Why a remote endpoint (rclpy TopicEndpointInfo) cannot match ours ('' if it can): another message type, or
+    (DDS request/offer) a best-effort writer for a reliable reader or a volatile writer for a transient-local reader.
+    ``requested``: the reader's QoS (ours, or the remote's with ``offered`` ours)."""
+    if info.topic_type != msg_type:
+        return f'type {info.topic_type}, not {msg_type}'
+    req, off = (requested, info.qos_profile) if offered is None else (info.qos_profile, offered)
+    if req.reliability == ReliabilityPolicy.RELIABLE and off.reliability == ReliabilityPolicy.BEST_EFFORT:
+        return 'best-effort delivery offered, reliable requested'
+    if req.durability == DurabilityPolicy.TRANSIENT_LOCAL and off.durability == DurabilityPolicy.VOLATILE:
+        return 'volatile durability offered, transient-local requested'
+    return ''
 
 
 def tf_message_type() -> type[Any] | None:
@@ -255,7 +276,7 @@ class CcfNode(Node):
         # secondary publishers go without rclpy's default QoS-event handlers (two waitables each, which only log),
         # debug and TF publishers exist only when asked for, and one timer serves diagnostics and held samples.
         self._quiet = PublisherEventCallbacks(use_default_callbacks=False)
-        self.pub_imu = self.create_publisher(Imu, self.profile.out_topic, OUTPUT_DEPTH)
+        self.pub_imu = self.create_publisher(Imu, self.profile.out_topic, OUTPUT_DEPTH, event_callbacks=self._quiet)
         self.pub_bias = self.create_publisher(Vector3Stamped, 'imu/gyro_bias', OUTPUT_DEPTH,
                                               event_callbacks=self._quiet)
         self._tf_type: type[Any] | None = None
@@ -265,17 +286,23 @@ class CcfNode(Node):
         # The executor serves ready subscriptions in creation order: magnetometer first, so that a magnetometer
         # sample and the IMU sample with the same stamp pair as they do in `ccf replay` (bag order). A profile whose
         # use_mag is read-only and false does not subscribe it (as imu_tools).
+        # Without rclpy's default QoS-event handlers either (two waitables each, rebuilt into the wait set on every
+        # wake-up): the timer checks the graph for endpoints that cannot match instead (_check_endpoints).
+        self._quiet_sub = SubscriptionEventCallbacks(use_default_callbacks=False)
+        self._mismatched: set[tuple[str, bytes]] = set()
         if self._settings['use_mag'] or 'use_mag' not in read_only:
             self.sub_mag = self.create_subscription(MagneticField, self.profile.mag_topic, self._on_mag_raw,
-                                                    self._input_qos(), raw=True,
+                                                    self._input_qos(), raw=True, event_callbacks=self._quiet_sub,
                                                     qos_overriding_options=self._qos_overrides())
         self.sub_imu = self.create_subscription(Imu, self.profile.imu_topic, self._on_imu_raw, self._input_qos(),
-                                                raw=True, qos_overriding_options=self._qos_overrides())
+                                                raw=True, event_callbacks=self._quiet_sub,
+                                                qos_overriding_options=self._qos_overrides())
         self._take_mag = self._taker(self.sub_mag) if self.sub_mag is not None else _nothing
         self._take_imu = self._taker(self.sub_imu)
         self.srv_reset = self.create_service(Trigger, '~/reset', self._on_reset)
         # robot_localization's idiom: a pose on set_pose sets the heading (its orientation's yaw).
-        self.sub_set_pose = self.create_subscription(PoseWithCovarianceStamped, 'set_pose', self._on_set_pose, 10)
+        self.sub_set_pose = self.create_subscription(PoseWithCovarianceStamped, 'set_pose', self._on_set_pose, 10,
+                                                     event_callbacks=self._quiet_sub)
         self._last_diag = time.monotonic()
         # A steady clock: held samples and diagnostics keep their pace with use_sim_time too.
         self.timer = self.create_timer(self.DIAGNOSTICS_PERIOD_S, self._on_timer,
@@ -620,6 +647,7 @@ class CcfNode(Node):
         if now - self._last_diag >= self.DIAGNOSTICS_PERIOD_S - 0.002:
             self._last_diag = now
             self._publish_diagnostics()
+            self._check_endpoints()
         wake = self._last_diag + self.DIAGNOSTICS_PERIOD_S
         deadline = self.sync.deadline
         if deadline is not None:
@@ -629,6 +657,38 @@ class CcfNode(Node):
         if period != timer.timer_period_ns:
             timer.timer_period_ns = period
             timer.reset()
+
+    def _check_endpoints(self) -> list[str]:
+        """Warn once per remote endpoint that cannot match one of ours (what rclpy's default QoS-event handlers
+        report, looked up here once a second instead of in every wake-up's wait set). Returns the new warnings."""
+        new = []
+        ours: list[tuple[Any, str, bool]] = [(self.sub_imu, 'sensor_msgs/msg/Imu', True),
+                                             (self.sub_set_pose, 'geometry_msgs/msg/PoseWithCovarianceStamped', True),
+                                             (self.pub_imu, 'sensor_msgs/msg/Imu', False)]
+        if self.sub_mag is not None:
+            ours.append((self.sub_mag, 'sensor_msgs/msg/MagneticField', True))
+        for entity, msg_type, is_sub in ours:
+            topic = entity.topic_name
+            if is_sub:
+                remote, role = self.get_publishers_info_by_topic(topic), 'publisher'
+            else:
+                remote, role = self.get_subscriptions_info_by_topic(topic), 'subscriber'
+            for info in remote:
+                key = (topic, bytes(info.endpoint_gid))
+                if key in self._mismatched:
+                    continue
+                why = (endpoint_mismatch(info, msg_type, entity.qos_profile) if is_sub else
+                       endpoint_mismatch(info, msg_type, info.qos_profile, offered=entity.qos_profile))
+                if why:
+                    self._mismatched.add(key)
+                    who = ('of a node not known yet' if info.node_name.startswith('_NODE_NAME_UNKNOWN')
+                           else f'{info.node_namespace.rstrip("/")}/{info.node_name}')
+                    text = (f'{role} {who} on {topic} cannot match: {why}; '
+                            'no messages flow between them' + ('; see qos_reliability' if is_sub and 'reliable' in why
+                                                               and entity is not self.sub_set_pose else ''))
+                    new.append(text)
+                    self.get_logger().warning(text)
+        return new
 
     def _answer_all(self, items: Any) -> None:
         for item in items:

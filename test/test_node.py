@@ -408,6 +408,41 @@ def test_hold_timer_takes_the_waiting_magnetometer_sample_before_timing_out(cont
         h.close()
 
 
+def test_endpoints_that_cannot_match_are_warned_about_once_without_per_wake_event_handlers(context):
+    """rclpy's default QoS-event handlers cost two waitables per endpoint in every wake-up's wait set: the node has
+    none of its own (as many as a bare rclpy node), and its timer reports what they would have, from the graph."""
+    from rclpy.qos import DurabilityPolicy
+
+    node = reliable_node(context)
+    bare = rclpy.create_node('bare', context=context)
+    h = Harness(context, node)
+    # Another participant: DDS refuses a second type for a topic within one.
+    ctx2 = rclpy.Context()
+    rclpy.init(context=ctx2)
+    other = rclpy.create_node('other', context=ctx2)
+    try:
+        assert len(list(node.waitables)) == len(list(bare.waitables))
+        best_effort = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
+        h.io.create_publisher(Imu, 'imu/data_raw', best_effort)  # node: qos_reliability reliable
+        other.create_publisher(Imu, 'imu/mag', RELIABLE)  # wrong type
+        h.io.create_subscription(Imu, 'imu/data', lambda _m: None,
+                                 QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        assert h.spin_until(lambda: node.count_publishers('/imu/data_raw') == 2 and node.count_publishers('/imu/mag')
+                            == 2 and node.count_subscribers('/imu/data') == 2)
+        warned = node._check_endpoints()
+        assert len(warned) == 3, warned
+        imu, mag, out = sorted(warned, key=lambda w: ('data_raw' not in w, 'mag' not in w))
+        assert 'publisher /feeder on /imu/data_raw' in imu and 'best-effort' in imu and 'qos_reliability' in imu
+        assert 'on /imu/mag' in mag and 'type sensor_msgs/msg/Imu, not sensor_msgs/msg/MagneticField' in mag
+        assert 'subscriber /feeder on /imu/data' in out and 'transient-local' in out
+        assert node._check_endpoints() == []  # once per endpoint
+    finally:
+        other.destroy_node()
+        rclpy.try_shutdown(context=ctx2)
+        bare.destroy_node()
+        h.close()
+
+
 def test_parameters_validated_live_and_applied_without_reset(context, inputs):
     node = reliable_node(context)
     h = Harness(context, node)
