@@ -21,12 +21,17 @@ def test_domain_range_parses_and_rejects_bad_specs():
             domain_range(bad)
 
 
-def test_this_test_holds_its_domain_and_others_are_handed_out_round_robin(ros_domain):
+def test_this_test_holds_its_domain_and_others_are_handed_out_round_robin(ros_domain, tmp_path, monkeypatch):
+    import conftest
+
     assert os.environ['ROS_DOMAIN_ID'] == str(ros_domain)
     domains = range(ros_domain, ros_domain + 1)
     with pytest.raises(RuntimeError, match='no free ROS domain'):
         acquire_domain(domains, wait_s=0.0)  # held by this test
-    lo = 225 if ros_domain < 225 else 215
+    # The round robin in a lock directory of this test's own: fixed domains in the machine's one may be held by
+    # another suite (failed so beside other suites: 'no free ROS domain in 225-227 for 0 s').
+    monkeypatch.setattr(conftest, 'DOMAIN_LOCK_DIR', tmp_path / 'locks')
+    lo = 225
     got = [acquire_domain(range(lo, lo + 3), wait_s=0.0) for _ in range(3)]
     try:
         assert sorted(d for d, _ in got) == [lo, lo + 1, lo + 2]  # each held once
