@@ -246,9 +246,11 @@ def main() -> None:
     ap.add_argument('--node-cmd', help='command of the node under test instead of the installed ccf_node '
                                        '(e.g. an older version, to compare)')
     ap.add_argument('--cpu', action='store_true', help='CPU per message at 200/400/1000 Hz and our code\'s share')
+    ap.add_argument('--rates', default='200,400,1000', help='--cpu: input rates, Hz, comma-separated')
+    ap.add_argument('--ccf-args', default='', help='--cpu: more ROS arguments for ccf_node (e.g. "-p use_mag:=false")')
     args = ap.parse_args()
     if args.cpu:
-        cpu_per_message(args.chunks)
+        cpu_per_message(args.chunks, tuple(float(r) for r in args.rates.split(',')), args.ccf_args.split())
     else:
         throughput_and_latency(args)
 
@@ -329,7 +331,8 @@ def throughput_and_latency(args: argparse.Namespace) -> None:
             print(f'{BROAD} not found: BROAD run skipped')
 
 
-def cpu_per_message(chunks: int, rates: tuple[float, ...] = (200.0, 400.0, 1000.0)) -> None:
+def cpu_per_message(chunks: int, rates: tuple[float, ...] = (200.0, 400.0, 1000.0),
+                    ccf_args: list[str] | None = None) -> None:
     """CPU time per answered IMU message (with its magnetometer message) of both nodes at each rate, interleaved
     in 2 s chunks, and the share of ccf_node's own per-message code (a fresh pair of nodes per rate)."""
     import tempfile
@@ -337,7 +340,8 @@ def cpu_per_message(chunks: int, rates: tuple[float, ...] = (200.0, 400.0, 1000.
     print(f'ROS_DOMAIN_ID={os.environ["ROS_DOMAIN_ID"]}, input QoS {QOS_IN[0]} depth {QOS_IN[1]}; {chunks} chunks of '
           f'2 s per node and rate, interleaved; load average {os.getloadavg()[0]:.1f}', flush=True)
     cmds = {'pass-through': [sys.executable, str(HERE / 'passthrough_node.py'), '--ros-args'],
-            'ccf_node': [sys.executable, str(HERE / 'node_share.py'), '--ros-args', '--log-level', 'error']}
+            'ccf_node': [sys.executable, str(HERE / 'node_share.py'), '--ros-args', '--log-level', 'error',
+                         *(ccf_args or [])]}
     labels = list(cmds)
     rows = []
     for rate in rates:

@@ -4,6 +4,7 @@ Thread CPU time (``time.thread_time_ns``) is summed over the node's per-message 
 reading, the engine, patching the answer) minus what rclpy's ``publish`` takes inside it, and written to the file
 named by ``CCF_SHARE_OUT`` at exit as ``ns_ours n_imu n_mag``. Everything else a message costs (DDS threads, rclpy's
 take and executor) is the rest of the process's CPU time. The timing itself adds ~4 clock reads per message.
+With ``CCF_PROFILE_OUT`` set, a cProfile of the whole node (executor included) is written to that file at exit.
 """
 
 from __future__ import annotations
@@ -64,9 +65,19 @@ def main() -> None:
         stats['node'] = self
 
     CcfNode.__init__ = init
+    profile_out = os.environ.get('CCF_PROFILE_OUT')  # a cProfile of the whole node (where a wake-up's CPU goes)
+    profiler = None
+    if profile_out:
+        import cProfile
+
+        profiler = cProfile.Profile()
+        profiler.enable()
     try:
         node_module.main()
     finally:
+        if profiler is not None and profile_out:
+            profiler.disable()
+            profiler.dump_stats(profile_out)
         out = os.environ.get('CCF_SHARE_OUT')
         node = stats.get('node')
         if out and node is not None:

@@ -40,14 +40,21 @@ from rcl_interfaces.msg import (
     SetParametersResult,
 )
 from rclpy.clock import Clock, ClockType
-from rclpy.event_handler import PublisherEventCallbacks
+from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.lifecycle import LifecycleNodeMixin, LifecycleState, TransitionCallbackReturn
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
-from rclpy.qos import HistoryPolicy, QoSPolicyKind, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    QoSPolicyKind,
+    QoSProfile,
+    ReliabilityPolicy,
+    qos_profile_sensor_data,
+)
 from rclpy.qos_overriding_options import InvalidQosOverridesError, QoSOverridingOptions
 from rclpy.serialization import deserialize_message
 from rclpy.subscription import Subscription
@@ -67,8 +74,9 @@ from .compat import (
     tf_transform,
 )
 from .core.base import ANSWERED_BELOW
+from .core.pairing import MagPairer
 from .core.quaternion import from_xyzw, rpy_of
-from .engine import ImuEngine, Output
+from .engine import JUMP_BACK_RESET_S, ImuEngine, Output
 from .frames import apply
 from .node_support import (
     Diagnostics,
@@ -91,6 +99,8 @@ from .offline.messages import fill_imu, reframe_msg, stamp_s
 from .settings import build, coerce, schema
 from .sync import HOLD_S, ImuMagSync
 
+#: A magnetometer stamp up to this much after an IMU stamp pairs with it (MagPairer's default tolerance_s), s.
+MAG_TOLERANCE_S = MagPairer().tolerance_s
 #: Depth of the output publishers (reliable, volatile: the rclpy defaults).
 OUTPUT_DEPTH = 10
 #: QoS of /tf, as tf2_ros' TransformBroadcaster (DynamicBroadcasterQoS: reliable, volatile, keep last 100).
@@ -114,6 +124,20 @@ def input_qos(reliability: str, depth: int) -> QoSProfile:
         reliability=ReliabilityPolicy.BEST_EFFORT if reliability == 'best_effort' else ReliabilityPolicy.RELIABLE,
         durability=qos_profile_sensor_data.durability,
     )
+
+
+def endpoint_mismatch(info: Any, msg_type: str, requested: QoSProfile, offered: QoSProfile | None = None) -> str:
+    """Why a remote endpoint (rclpy TopicEndpointInfo) cannot match ours ('' if it can): another message type, or
+    (DDS request/offer) a best-effort writer for a reliable reader or a volatile writer for a transient-local reader.
+    ``requested``: the reader's QoS (ours, or the remote's with ``offered`` ours)."""
+    if info.topic_type != msg_type:
+        return f'type {info.topic_type}, not {msg_type}'
+    req, off = (requested, info.qos_profile) if offered is None else (info.qos_profile, offered)
+    if req.reliability == ReliabilityPolicy.RELIABLE and off.reliability == ReliabilityPolicy.BEST_EFFORT:
+        return 'best-effort delivery offered, reliable requested'
+    if req.durability == DurabilityPolicy.TRANSIENT_LOCAL and off.durability == DurabilityPolicy.VOLATILE:
+        return 'volatile durability offered, transient-local requested'
+    return ''
 
 
 def tf_message_type() -> type[Any] | None:
@@ -230,6 +254,8 @@ class CcfNode(Node):
         self.stats = InputStats()
         self._noticed: set[str] = set()
         self._last_bias_t = -math.inf
+        #: stamp of the IMU sample processed last (+ the pairer's tolerance): a magnetometer sample up to it is late
+        self._t_imu_done = -math.inf
         self._last_warn = 0.0
         if not self._callbacks_added:
             self._callbacks_added = True
@@ -244,7 +270,7 @@ class CcfNode(Node):
         # secondary publishers go without rclpy's default QoS-event handlers (two waitables each, which only log),
         # debug and TF publishers exist only when asked for, and one timer serves diagnostics and held samples.
         self._quiet = PublisherEventCallbacks(use_default_callbacks=False)
-        self.pub_imu = self.create_publisher(Imu, self.profile.out_topic, OUTPUT_DEPTH)
+        self.pub_imu = self.create_publisher(Imu, self.profile.out_topic, OUTPUT_DEPTH, event_callbacks=self._quiet)
         self.pub_bias = self.create_publisher(Vector3Stamped, 'imu/gyro_bias', OUTPUT_DEPTH,
                                               event_callbacks=self._quiet)
         self._tf_type: type[Any] | None = None
@@ -254,17 +280,23 @@ class CcfNode(Node):
         # The executor serves ready subscriptions in creation order: magnetometer first, so that a magnetometer
         # sample and the IMU sample with the same stamp pair as they do in `ccf replay` (bag order). A profile whose
         # use_mag is read-only and false does not subscribe it (as imu_tools).
+        # Without rclpy's default QoS-event handlers either (two waitables each, rebuilt into the wait set on every
+        # wake-up): the timer checks the graph for endpoints that cannot match instead (_check_endpoints).
+        self._quiet_sub = SubscriptionEventCallbacks(use_default_callbacks=False)
+        self._mismatched: set[tuple[str, bytes]] = set()
         if self._settings['use_mag'] or 'use_mag' not in read_only:
             self.sub_mag = self.create_subscription(MagneticField, self.profile.mag_topic, self._on_mag_raw,
-                                                    self._input_qos(), raw=True,
+                                                    self._input_qos(), raw=True, event_callbacks=self._quiet_sub,
                                                     qos_overriding_options=self._qos_overrides())
         self.sub_imu = self.create_subscription(Imu, self.profile.imu_topic, self._on_imu_raw, self._input_qos(),
-                                                raw=True, qos_overriding_options=self._qos_overrides())
+                                                raw=True, event_callbacks=self._quiet_sub,
+                                                qos_overriding_options=self._qos_overrides())
         self._take_mag = self._taker(self.sub_mag) if self.sub_mag is not None else _nothing
         self._take_imu = self._taker(self.sub_imu)
         self.srv_reset = self.create_service(Trigger, '~/reset', self._on_reset)
         # robot_localization's idiom: a pose on set_pose sets the heading (its orientation's yaw).
-        self.sub_set_pose = self.create_subscription(PoseWithCovarianceStamped, 'set_pose', self._on_set_pose, 10)
+        self.sub_set_pose = self.create_subscription(PoseWithCovarianceStamped, 'set_pose', self._on_set_pose, 10,
+                                                     event_callbacks=self._quiet_sub)
         self._last_diag = time.monotonic()
         # A steady clock: held samples and diagnostics keep their pace with use_sim_time too.
         self.timer = self.create_timer(self.DIAGNOSTICS_PERIOD_S, self._on_timer,
@@ -512,10 +544,11 @@ class CcfNode(Node):
         """
         take_imu = self._take_imu
         for _ in range(self.DRAIN_MAX):
-            self._take_mags()
             imu = take_imu()
             if imu is None:
-                return
+                return  # (no magnetometer take first: at low rates every take here finds nothing, and costs)
+            # Magnetometer samples that arrived by now go first (as if the IMU sample had been taken after them).
+            self._take_mags()
             self._imu(imu)
 
     @staticmethod
@@ -543,11 +576,22 @@ class CcfNode(Node):
             self._warn_throttled(f'unreadable magnetometer message ({len(data)} bytes) dropped: {err}')
             return
         now = time.monotonic()
+        if t <= self._t_imu_done:
+            self._mag_late(t)
         self.engine.on_mag(t, field)
         self.stats.on_mag(now)
         released = self.sync.on_mag(t, now)
         if released:
             self._answer_all(released)
+
+    def _mag_late(self, t: float) -> None:
+        """A magnetometer sample comes after the IMU sample with its stamp (or a later one) was processed: replay
+        would have paired it with that one (it timed out, or the sample overtook it over DDS). Counted; at debug
+        level logged with where it landed, so that a test can rebuild the node's order exactly."""
+        if t < self._t_imu_done - JUMP_BACK_RESET_S:
+            return  # the clock jumped back (bag loop): a new timeline, not a late sample
+        self.stats.n_mag_late += 1
+        self.get_logger().debug(f'late magnetometer sample t={t!r} after IMU sample {self.engine.n_in}')
 
     def _imu(self, data: bytes) -> None:
         now = time.monotonic()
@@ -584,6 +628,12 @@ class CcfNode(Node):
     def _on_timer(self) -> None:
         """Release held samples whose magnetometer sample did not come within HOLD_S (lost, late or none), publish
         diagnostics once a second, and set the next wake-up: the earlier of the two."""
+        if self.sync.holding:
+            # rclpy's executor hands out a node's ready timers before its ready subscriptions (Jazzy, rclpy 7:
+            # executors.py, _wait_for_ready_callbacks): after the process was descheduled for more than HOLD_S, this
+            # timer runs while the magnetometer sample a held IMU sample waits for is already in the reader queue.
+            # Taken first, it pairs as in replay; only what is still missing times out.
+            self._take_mags()
         now = time.monotonic()
         self._answer_all(self.sync.expire(now))
         if self._hint_topic and self.sub_hint is None:
@@ -591,6 +641,7 @@ class CcfNode(Node):
         if now - self._last_diag >= self.DIAGNOSTICS_PERIOD_S - 0.002:
             self._last_diag = now
             self._publish_diagnostics()
+            self._check_endpoints()
         wake = self._last_diag + self.DIAGNOSTICS_PERIOD_S
         deadline = self.sync.deadline
         if deadline is not None:
@@ -600,6 +651,38 @@ class CcfNode(Node):
         if period != timer.timer_period_ns:
             timer.timer_period_ns = period
             timer.reset()
+
+    def _check_endpoints(self) -> list[str]:
+        """Warn once per remote endpoint that cannot match one of ours (what rclpy's default QoS-event handlers
+        report, looked up here once a second instead of in every wake-up's wait set). Returns the new warnings."""
+        new = []
+        ours: list[tuple[Any, str, bool]] = [(self.sub_imu, 'sensor_msgs/msg/Imu', True),
+                                             (self.sub_set_pose, 'geometry_msgs/msg/PoseWithCovarianceStamped', True),
+                                             (self.pub_imu, 'sensor_msgs/msg/Imu', False)]
+        if self.sub_mag is not None:
+            ours.append((self.sub_mag, 'sensor_msgs/msg/MagneticField', True))
+        for entity, msg_type, is_sub in ours:
+            topic = entity.topic_name
+            if is_sub:
+                remote, role = self.get_publishers_info_by_topic(topic), 'publisher'
+            else:
+                remote, role = self.get_subscriptions_info_by_topic(topic), 'subscriber'
+            for info in remote:
+                key = (topic, bytes(info.endpoint_gid))
+                if key in self._mismatched:
+                    continue
+                why = (endpoint_mismatch(info, msg_type, entity.qos_profile) if is_sub else
+                       endpoint_mismatch(info, msg_type, info.qos_profile, offered=entity.qos_profile))
+                if why:
+                    self._mismatched.add(key)
+                    who = ('of a node not known yet' if info.node_name.startswith('_NODE_NAME_UNKNOWN')
+                           else f'{info.node_namespace.rstrip("/")}/{info.node_name}')
+                    text = (f'{role} {who} on {topic} cannot match: {why}; '
+                            'no messages flow between them' + ('; see qos_reliability' if is_sub and 'reliable' in why
+                                                               and entity is not self.sub_set_pose else ''))
+                    new.append(text)
+                    self.get_logger().warning(text)
+        return new
 
     def _answer_all(self, items: Any) -> None:
         for item in items:
@@ -614,6 +697,7 @@ class CcfNode(Node):
         if self.engine.wants_sensor_frame:
             self.engine.set_sensor_frame(imu_header(data)[2] if isinstance(data, bytes) else data.header.frame_id)
         out = self.engine.on_imu(t, gyr, acc)
+        self._t_imu_done = t + MAG_TOLERANCE_S
         if out is None:
             self._warn_throttled(f'sample at t={t:.6f} s skipped: no orientation yet (no valid accelerometer sample)')
             return
@@ -697,10 +781,12 @@ class CcfNode(Node):
 
     def _bias_due(self, t: float) -> bool:
         """imu/gyro_bias at up to gyro_bias_rate_hz, by the filter's clock ``t`` (s: the stamps, or constant_dt's
-        clock when the stamps are not used); a clock going back publishes at once."""
+        clock when the stamps are not used); a clock going back publishes at once. Only while someone subscribes:
+        a DDS write costs as much as the rest of a message at 200 Hz, and a volatile topic gives a later subscriber
+        nothing from before anyway (the cadence is kept either way)."""
         if t - self._last_bias_t >= self._bias_period or t < self._last_bias_t:
             self._last_bias_t = t
-            return True
+            return self.pub_bias.get_subscription_count() > 0
         return False
 
     def _warn_throttled(self, text: str) -> None:
@@ -731,6 +817,7 @@ class CcfNode(Node):
         self._answer_all(self.sync.flush(time.monotonic()))
         self.engine.reset()
         self.sync.reset()
+        self._t_imu_done = -math.inf
         resp.success = True
         resp.message = 'filter reset; re-initialising from the next sample with a valid accelerometer'
         self.get_logger().info(resp.message)
@@ -802,6 +889,7 @@ class CcfLifecycleNode(LifecycleNodeMixin, CcfNode):
         self.save_state()  # before the estimate is dropped
         self.engine.reset()
         self.sync.reset()
+        self._t_imu_done = -math.inf
         self.stats = InputStats()
         self._configured = False
         return TransitionCallbackReturn.SUCCESS

@@ -118,6 +118,9 @@ class InputStats:
         #: messages received per topic, and messages dropped because they could not be read
         self.n_imu = 0
         self.n_mag = 0
+        #: magnetometer samples that reached the engine after the IMU sample with their stamp (or a later one) had
+        #: been processed: replay (bag order) pairs them earlier
+        self.n_mag_late = 0
         self.n_unreadable = 0
 
     def on_imu(self, t: float, now: float) -> None:
@@ -235,6 +238,7 @@ def diagnostics(
         'input rate (Hz)': f'{stats.rate_hz(now):.1f}',
         'samples in': str(engine.n_in),
         'magnetometer samples in': str(stats.n_mag),
+        'magnetometer samples after their IMU sample': str(stats.n_mag_late),
         'samples answered': str(engine.answered()),
         'samples answered with the current orientation (could not advance the filter)': str(engine.n_answered_stale),
         'share of the latest answers with a held orientation': f'{engine.stale_share:.2f}',

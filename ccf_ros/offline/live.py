@@ -150,19 +150,23 @@ def stop(proc: subprocess.Popen[str]) -> int | None:
         return None
 
 
-def run_live(bag: Path, rate: float = 4.0, timeout_s: float = 120.0, node_qos: str = 'reliable') -> LiveResult:
+def run_live(bag: Path, rate: float = 4.0, timeout_s: float = 120.0, node_qos: str = 'reliable',
+             node_log: Path | None = None) -> LiveResult:
     """Start ``ccf_node``, play ``bag``'s IMU and magnetometer topics into it, record ``imu/data``, stop it.
 
     ``node_qos`` is the node's input reliability: ``reliable`` (nothing lost) or ``best_effort`` (its default).
-    The last ``/diagnostics`` values of the node are returned too.
+    The last ``/diagnostics`` values of the node are returned too. ``node_log``: the node's log goes to this file,
+    its own logger at debug level (e.g. its late magnetometer samples), else warnings only.
     """
     isolate_dds()
     types, messages = load_messages(bag, ['/imu/data_raw', '/imu/mag'])
     n_imu = sum(1 for _, topic, _ in messages if topic == '/imu/data_raw')
+    levels = ['--log-level', 'warn'] + (['--log-level', 'ccf_node:=debug'] if node_log is not None else [])
+    log = Path(node_log).open('w') if node_log is not None else None  # noqa: SIM115 - closed after the node exited
     proc = subprocess.Popen(
         [*node_command(), '--ros-args', '-p', f'qos_reliability:={node_qos}', '-p',
-         f'qos_depth:={10000 if node_qos == "reliable" else 50}', '--log-level', 'warn'],
-        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+         f'qos_depth:={10000 if node_qos == "reliable" else 50}', *levels],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE if log is None else log, text=True,
     )
     exit_code = None
     with Recorder('ccf_demo_recorder', 'ccf_node') as rec:
@@ -172,7 +176,8 @@ def run_live(bag: Path, rate: float = 4.0, timeout_s: float = 120.0, node_qos: s
             while time.time() < deadline and (rec.node.count_subscribers('imu/data_raw') == 0
                                               or rec.node.count_publishers('imu/data') == 0):
                 if proc.poll() is not None:
-                    detail = (proc.stderr.read() if proc.stderr else '').strip().splitlines()
+                    detail = (proc.stderr.read() if proc.stderr else Path(node_log).read_text() if node_log is not None
+                              else '').strip().splitlines()
                     raise CcfError(f'ccf_node exited with code {proc.returncode}'
                                    + (f': {detail[-1]}' if detail else ''))
                 time.sleep(0.05)
@@ -183,5 +188,7 @@ def run_live(bag: Path, rate: float = 4.0, timeout_s: float = 120.0, node_qos: s
             rec.wait_answered(n_imu, timeout_s)
         finally:
             exit_code = stop(proc)
+            if log is not None:
+                log.close()
     t, q, _ = rec.arrays()
     return LiveResult(t_s=t, quat=q, n_imu_sent=n_imu, exit_code=exit_code, diagnostics=dict(rec.diagnostics))
