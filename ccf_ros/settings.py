@@ -323,7 +323,7 @@ def _coerce(p: Parameter, value: Any) -> Any:
         return value
     number = parse_number(name, value)
     if isinstance(p.default, int):
-        if number != int(number):
+        if not math.isfinite(number) or number != int(number):
             raise ParameterError(f'{name} must be an integer, got {value!r}')
         number = int(number)
     if not lo <= number <= hi or (p.above and number <= lo):  # NaN too

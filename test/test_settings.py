@@ -141,8 +141,9 @@ def test_above_means_the_lower_bound_itself_is_refused():
         coerce('tau_acc_s', 0)
     assert coerce('constant_dt', 0) == 0.0
     assert coerce('qos_depth', '7') == 7 and isinstance(coerce('qos_depth', 7.0), int)
-    with pytest.raises(ParameterError, match='qos_depth must be an integer'):
-        coerce('qos_depth', 7.5)
+    for bad in (7.5, 'inf', float('inf'), float('nan')):  # inf once escaped as OverflowError (int(inf))
+        with pytest.raises(ParameterError, match='qos_depth must be an integer'):
+            coerce('qos_depth', bad)
 
 
 def test_old_names_stay_importable():

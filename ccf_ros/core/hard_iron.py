@@ -28,6 +28,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from .base import GYRO_MAX_RAD_S
+
 Vec3 = tuple[float, float, float]
 Quat = tuple[float, float, float, float]
 
@@ -41,6 +43,8 @@ UPDATE_PERIOD_S = 0.1
 SOLVE_EVERY = 5
 #: A gap in the IMU stream longer than this (s) restarts the gyro integration (no pair spans it).
 MAX_DT_S = 0.5
+#: Square of the largest half rotation rate integrated, (rad/s)²: faster samples are corrupted (GYRO_MAX_RAD_S).
+_HALF_STEP_MAX2 = (0.5 * GYRO_MAX_RAD_S) ** 2
 #: Applied once the largest standard deviation of the estimate is below this fraction of the field norm.
 SIGMA_APPLY_REL = 0.02
 #: ... and the model's RMS residual per axis below this fraction of the field norm (else: a world-fixed disturbance).
@@ -192,7 +196,9 @@ class HardIronEstimator:
         else:
             self._t = t_s
             hx, hy, hz = (gyr[0] - bias[0]) * dt * 0.5, (gyr[1] - bias[1]) * dt * 0.5, (gyr[2] - bias[2]) * dt * 0.5
-            if hx - hx == 0.0 and hy - hy == 0.0 and hz - hz == 0.0:  # finite
+            # Finite and a rotation (the filter skips faster samples as corrupted: GYRO_MAX_RAD_S); a huge finite rate
+            # would overflow the norm below and zero the quaternion.
+            if hx * hx + hy * hy + hz * hz <= _HALF_STEP_MAX2 * dt * dt:
                 qw, qx, qy, qz = self._q  # q (1, h) inlined: this runs at every IMU sample
                 w = qw - qx * hx - qy * hy - qz * hz
                 x = qx + qw * hx + qy * hz - qz * hy
