@@ -127,7 +127,7 @@ def connect(scheduler: str | None, jobs: int) -> Iterator[Any]:
                          'distributed.admin.tick.interval': '1s',
                          'distributed.admin.system-monitor.interval': '5s',
                          'distributed.worker.memory.monitor-interval': '1s',
-                         **({'distributed.worker.multiprocessing-method': 'fork'} if os.name == 'posix' else {})}),
+                         **({'distributed.worker.multiprocessing-method': 'fork'} if sys.platform == 'linux' else {})}),
         LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host='127.0.0.1', dashboard_address=None,
                      silence_logs=logging.ERROR) as cluster,
         Client(cluster, set_as_default=False) as client,

@@ -169,16 +169,26 @@ class _Deadline:
                 _set_async_exc(self._tid, _TimeUp)
 
     def __exit__(self, *exc: object) -> None:
+        if self._stop() and not isinstance(exc[1], _TimeUp):
+            raise _TimeUp
+
+    def disarm(self) -> None:
+        """Stop the clock before work that must not be cut in the middle (publishing the output bag: moving the old
+        one aside, renaming the new one in); raises :class:`_TimeUp` if the time was already up."""
+        if self._stop():
+            raise _TimeUp
+
+    def _stop(self) -> bool:
+        """Disarm; whether the time was up (an exception set but not yet delivered is withdrawn)."""
         if self._timer is None:
-            return
+            return False
         self._timer.cancel()
         with self._lock:
             self._armed = False
             fired = self._fired
             if fired:
                 _set_async_exc(self._tid, None)  # withdrawn if not delivered yet
-        if fired and not isinstance(exc[1], _TimeUp):
-            raise _TimeUp
+        return fired
 
     def message(self) -> str:
         return f'took longer than the task timeout ({self.timeout_s:g} s)'
@@ -316,7 +326,7 @@ def _accuracy(out_bag: Path, bag: str, opts: FleetOptions) -> dict[str, Any]:
     return {k: (list(v) if isinstance(v, tuple) else v) for k, v in s.as_dict().items()}
 
 
-def _run(bag: str, key: str, opts: FleetOptions) -> dict[str, Any]:
+def _run(bag: str, key: str, opts: FleetOptions, deadline: _Deadline) -> dict[str, Any]:
     from ..cli import make_engine
     from ..offline.replay import replay
 
@@ -342,6 +352,7 @@ def _run(bag: str, key: str, opts: FleetOptions) -> dict[str, Any]:
             if has_ref:
                 record['accuracy'] = _accuracy(done, bag, opts)
             if opts.write_bags:
+                deadline.disarm()
                 _publish(done, out_bag)
                 record['output'] = str(out_bag)
         finally:
@@ -370,7 +381,7 @@ def process_bag(bag: str, key: str, opts: FleetOptions) -> dict[str, Any]:
     try:
         try:
             with deadline:
-                body = _run(bag, key, opts)
+                body = _run(bag, key, opts, deadline)
         except _TimeUp:
             raise BagTimeout(deadline.message()) from None
         result = {'bag': bag, 'key': key, 'status': 'ok', **body}
