@@ -3,7 +3,7 @@ and at an arbitrary angle (gyro, accelerometer and magnetometer), replayed throu
 ``mount_rotation``; and the magnetometer alone turned, with ``mag_rotation``. Each should score as the unrotated
 trial (total RMSE within 1 %; in fact to rounding).
 
-Usage: python benchmarks/mounting.py [--shared ../shared/data/broad] [--trials 02] [NAME=VALUE ...]
+Usage: python experiments/mounting.py [--shared ../shared/data/broad] [--trials 02] [NAME=VALUE ...]
 """
 
 from __future__ import annotations

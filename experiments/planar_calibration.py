@@ -8,7 +8,7 @@ field) and once without (the offset along the axis is then left at 0). Heading R
 engine with the calibration YAML is printed beside the clean recording's and the uncalibrated one's, on the spin
 itself and on a 300 s drive (``generate_vehicle``) with the same distortion.
 
-Usage: python benchmarks/planar_calibration.py [--seed N]   (offline, no rclpy; ~30 s)
+Usage: python experiments/planar_calibration.py [--seed N]   (offline, no rclpy; ~30 s)
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@
    body-fixed offset: expected better).
 3. Cost: the engine's time per sample on one trial, off and on, interleaved (one run; a ratio).
 
-Usage: python benchmarks/online_hard_iron.py [--shared DIR] [--trials 30,33] [--skip-sim] [NAME=VALUE ...]
+Usage: python experiments/online_hard_iron.py [--shared DIR] [--trials 30,33] [--skip-sim] [NAME=VALUE ...]
 (offline, no rclpy)
 """
 

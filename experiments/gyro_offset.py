@@ -8,7 +8,7 @@ For each offset, total RMSE (deg) over the moving samples:
   sample (a robot restarted while moving: no rest to learn from), loads it; scored over its first 60 s of motion,
   beside the same start without the file and the clean trial's same window.
 
-Usage: python benchmarks/gyro_offset.py [--shared ../shared/data/broad] [--trials 02] [--offsets 5,10] [NAME=VALUE ...]
+Usage: python experiments/gyro_offset.py [--shared ../shared/data/broad] [--trials 02] [--offsets 5,10] [NAME=VALUE ...]
 """
 
 from __future__ import annotations
