@@ -27,11 +27,9 @@ WINDOW_S = 60.0
 
 
 def main() -> None:
-    ap = parser(__doc__)
+    ap = parser(__doc__, trials='02')
     ap.add_argument('--offsets', default='5,10', help='offsets to add, deg/s (every axis)')
     a = ap.parse_args()
-    if not a.trials:
-        a.trials = '02'
     trials, settings = trials_and_settings(a)
     for trial in trials:
         imu = read_imu_arrays(trial)

@@ -64,10 +64,8 @@ def score(trial: Path, t: np.ndarray, q: np.ndarray, window: tuple[float, float]
 
 
 def main() -> None:
-    ap = parser(__doc__)
+    ap = parser(__doc__, trials='02')
     a = ap.parse_args()
-    if not a.trials:
-        a.trials = '02'
     trials, settings = trials_and_settings(a)
     for trial in trials:
         imu = read_imu_arrays(trial)
