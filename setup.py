@@ -23,7 +23,7 @@ if not os.environ.get('AMENT_PREFIX_PATH'):
 setup(
     name=package_name,
     version='0.1.0',
-    packages=find_packages(exclude=['test', 'test.*', 'benchmarks']),
+    packages=find_packages(exclude=['test', 'test.*', 'benchmarks', 'experiments', 'checks']),
     # PEP 561: the package's type hints count for its users.
     package_data={'ccf_ros': ['py.typed']},
     data_files=[

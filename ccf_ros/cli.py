@@ -421,14 +421,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help='nav_msgs/Odometry or geometry_msgs/TwistStamped in the bag: the gyro bias is learnt at rest '
                         'only when it says still (motion_hint_* settings), as the node does')
     r.add_argument('--no-mag', action='store_true', help='ignore the magnetometer (6-D filter)')
-    r.add_argument('--params-file', action='append', metavar='FILE',
-                   help='ROS 2 parameters YAML, as for the node (config/ccf.yaml, a ccf calibrate-mag result); '
-                   'repeatable, a later file overrides an earlier one')
-    r.add_argument('--param', action='append', metavar='NAME=VALUE',
-                   help='set one parameter, over the parameters files (repeatable; list: ccf params)')
-    r.add_argument('--profile', choices=('ccf_node', 'imu_filter_madgwick_node', 'complementary_filter_node'),
-                   default='ccf_node', help="start from this executable's defaults (replay an imu_tools YAML as the "
-                   'drop-in node of that name would run it)')
+    _add_filter_options(r)
     r.add_argument('--copy-input', action='store_true', help='also copy every input message to the output')
     r.add_argument('--overwrite', action='store_true', help='replace an existing output bag')
     r.add_argument('--storage', choices=STORAGES, default='mcap', help='output storage')

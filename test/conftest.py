@@ -122,8 +122,10 @@ def sim_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
-def copy_bag(src: Path, dst: Path, *, stop_s: float | None = None, edit=None, storage: str = 'mcap') -> Path:
-    """Copy (part of) a bag, letting ``edit(topic, msg, t_rec_ns) -> list[(msg, t_rec_ns)]`` change messages."""
+def copy_bag(src: Path, dst: Path, *, stop_s: float | None = None, edit=None, storage: str = 'mcap',
+             little_endian=None) -> Path:
+    """Copy (part of) a bag, letting ``edit(topic, msg, t_rec_ns) -> list[(msg, t_rec_ns)]`` change messages;
+    ``little_endian(k) -> bool``: the byte order of the k-th message read (None: little-endian CDR throughout)."""
     from rosbags.rosbag2 import StoragePlugin, Writer
 
     from ccf_ros.offline.bagio import open_bag, typestore
@@ -133,14 +135,15 @@ def copy_bag(src: Path, dst: Path, *, stop_s: float | None = None, edit=None, st
     with open_bag(src) as reader, Writer(dst, version=9, storage_plugin=plugin) as w:
         out = {c.topic: w.add_connection(c.topic, c.msgtype, typestore=ts) for c in reader.connections}
         t_start = None
-        for conn, t, raw in reader.messages():
+        for k, (conn, t, raw) in enumerate(reader.messages()):
             t_start = t if t_start is None else t_start
             if stop_s is not None and t - t_start > stop_s * 1e9:
                 break
             msg = reader.deserialize(raw, conn.msgtype)
             items = edit(conn.topic, msg, t) if edit else [(msg, t)]
+            little = little_endian(k) if little_endian else True
             for m, tt in items:
-                w.write(out[conn.topic], tt, ts.serialize_cdr(m, conn.msgtype))
+                w.write(out[conn.topic], tt, ts.serialize_cdr(m, conn.msgtype, little_endian=little))
     return dst
 
 

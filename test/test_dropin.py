@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import math
 import shutil
-import signal
 import subprocess
 import sys
 import time
@@ -535,11 +534,7 @@ def test_imu_filter_yaml_on_the_installed_madgwick_executable(context, inputs):
         assert len(h.out) == 60
         np.testing.assert_array_equal(_xyzw(h.out), _ref_xyzw(_replay_reference(msgs)))
     finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            out, _ = proc.communicate(timeout=20)
-        finally:
-            h.close()
+        out = h.stop(proc)
     assert proc.returncode == 0, out
     assert 'Traceback' not in out
     assert '[imu_filter]' in out

@@ -11,9 +11,9 @@ from conftest import SHARED, need_shared
 from ccf_ros.core.base import OrientationFilter
 from ccf_ros.core.hard_iron import HardIronEstimator
 from ccf_ros.core.metrics import summarize
-from ccf_ros.core.quaternion import from_xyzw
 from ccf_ros.engine import ImuEngine
 from ccf_ros.errors import ParameterError
+from ccf_ros.offline.evaluate import engine_orientations
 from ccf_ros.offline.simulate import SimData, dipole_field, generate, with_mag_distortion
 from ccf_ros.settings import build
 
@@ -26,19 +26,13 @@ def run(settings: dict, t, gyr, acc, mag, probe_s: float | None = None, engine: 
     message), the engine, and its hard-iron status at ``t[0] + probe_s``."""
     if engine is None:
         engine = ImuEngine(*build(settings))
-    q = np.full((len(t), 4), np.nan)
-    tl, gl, al, ml = t.tolist(), gyr.tolist(), acc.tolist(), mag.tolist()
-    has = np.all(np.isfinite(mag), axis=1).tolist()
-    probe = None
-    for k in range(len(tl)):
-        if has[k]:
-            engine.on_mag(tl[k], tuple(ml[k]))
-        out = engine.on_imu(tl[k], tuple(gl[k]), tuple(al[k]))
-        if out is not None:
-            q[k] = from_xyzw(*out.orientation_xyzw)
-        if probe_s is not None and probe is None and tl[k] - tl[0] >= probe_s:
-            probe = engine.hard_iron_status()
-    return q, engine, probe
+    probe: list[object] = []
+
+    def look(_k: int, t_k: float) -> None:
+        if probe_s is not None and not probe and t_k - float(t[0]) >= probe_s:
+            probe.append(engine.hard_iron_status())
+
+    return engine_orientations(engine, t, gyr, acc, mag, look), engine, probe[0] if probe else None
 
 
 @pytest.fixture(scope='module')

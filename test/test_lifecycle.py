@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import shutil
-import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -170,11 +169,7 @@ def test_installed_lifecycle_node_exits_cleanly_on_sigint(context, inputs, start
             assert len(h.out) == 200
         assert m.state() == start
     finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            out, _ = proc.communicate(timeout=20)
-        finally:
-            h.close()
+        out = h.stop(proc)
     assert proc.returncode == 0, out
     assert 'Traceback' not in out
 

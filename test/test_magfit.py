@@ -10,8 +10,8 @@ import pytest
 
 from ccf_ros.cli import main as ccf
 from ccf_ros.core.metrics import summarize
-from ccf_ros.core.quaternion import from_xyzw
 from ccf_ros.engine import ImuEngine
+from ccf_ros.offline.evaluate import engine_orientations
 from ccf_ros.offline.magcal import CalibrationError, read_mag
 from ccf_ros.offline.magfit import fit_planar, rotation_axes, turn_coverage
 from ccf_ros.offline.params_file import load_params_file
@@ -32,15 +32,7 @@ FIELD_T = float(np.linalg.norm(MAG_WORLD))
 
 
 def heading_deg(data: SimData, params: dict | None = None) -> float:
-    filt, adapter = build(params or {})
-    eng = ImuEngine(filt, adapter)
-    q = np.full((len(data.t_s), 4), np.nan)
-    t, g, a, m = data.t_s.tolist(), data.gyr.tolist(), data.acc.tolist(), data.mag.tolist()
-    for k in range(len(t)):
-        eng.on_mag(t[k], tuple(m[k]))
-        out = eng.on_imu(t[k], tuple(g[k]), tuple(a[k]))
-        if out is not None:
-            q[k] = from_xyzw(*out.orientation_xyzw)
+    q = engine_orientations(ImuEngine(*build(params or {})), data.t_s, data.gyr, data.acc, data.mag)
     return summarize(q, data.q_true, data.moving).heading_rmse_deg
 
 

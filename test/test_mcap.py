@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import itertools
 import random
 from pathlib import Path
 
 import pytest
+from conftest import copy_bag
 
 from ccf_ros.offline.bagio import open_bag, open_writer, read_messages, typestore
 from ccf_ros.offline.mcap import McapFile, fast_messages, fast_writer
@@ -107,7 +109,6 @@ def test_scan_without_message_index_gives_the_same_messages(sim_bag, monkeypatch
 
 def test_topics_are_detected_by_type(sim_bag, tmp_path):
     """One Imu topic (whatever its name) is the IMU; of several, /imu/data_raw, else an error naming them."""
-    from conftest import copy_bag
 
     from ccf_ros.errors import BagError
     from ccf_ros.offline.bagio import detect_topics
@@ -158,22 +159,15 @@ def test_overlapping_chunks_stream_one_neighbour_at_a_time(tmp_path):
 
 def _frames_varied(src: Path, dst: Path, stop_s: float) -> Path:
     """The first ``stop_s`` of ``src`` with IMU frame_ids of three lengths: the records differ in length and header."""
-    from rosbags.rosbag2 import StoragePlugin, Writer
+    k = itertools.count()  # every message read counts, as the k-th record of the bag
 
-    ts = typestore()
-    with open_bag(src) as reader, Writer(dst, version=9, storage_plugin=StoragePlugin.MCAP) as w:
-        out = {c.id: w.add_connection(c.topic, c.msgtype, typestore=ts) for c in reader.connections}
-        t0 = None
-        for k, (c, t, raw) in enumerate(reader.messages()):
-            t0 = t if t0 is None else t0
-            if t - t0 > stop_s * 1e9:
-                break
-            if c.msgtype == 'sensor_msgs/msg/Imu':
-                msg = reader.deserialize(raw, c.msgtype)
-                msg.header.frame_id = ('imu', 'imu_link', 'a_long_imu_frame')[k % 3]
-                raw = ts.serialize_cdr(msg, c.msgtype)
-            w.write(out[c.id], t, raw)
-    return dst
+    def edit(topic, msg, t):
+        n = next(k)
+        if msg.__msgtype__ == 'sensor_msgs/msg/Imu':
+            msg.header.frame_id = ('imu', 'imu_link', 'a_long_imu_frame')[n % 3]
+        return [(msg, t)]
+
+    return copy_bag(src, dst, stop_s=stop_s, edit=edit)
 
 
 @pytest.mark.parametrize('params', [[], ['bias_corrected_rate=true', 'remove_gravity_vector=true']])

@@ -125,6 +125,16 @@ class Harness:
         if self.node is not None:
             self.node.destroy_node()
 
+    def stop(self, proc, sig=signal.SIGINT):
+        """Stop the node subprocess ``proc`` with ``sig`` (waiting up to 20 s), then close this harness; the
+        subprocess' output (stdout with stderr)."""
+        proc.send_signal(sig)
+        try:
+            out, _ = proc.communicate(timeout=20)
+        finally:
+            self.close()
+        return out
+
 
 def _replay_reference(messages, settings=None, engine=None):
     """What `ccf replay` computes for the same messages in the same order: the shared engine's outputs."""
@@ -547,11 +557,7 @@ def test_installed_node_in_a_namespace_answers_and_exits_cleanly(context, inputs
         assert len(h.out) == 600
         np.testing.assert_array_equal(_xyzw(h.out), _ref_xyzw(_replay_reference(inputs[:1200], {'use_mag': False})))
     finally:
-        proc.send_signal(sig)
-        try:
-            out, _ = proc.communicate(timeout=20)
-        finally:
-            h.close()
+        out = h.stop(proc, sig)
     assert proc.returncode == 0, out
     assert 'Traceback' not in out
 

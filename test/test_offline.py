@@ -308,21 +308,7 @@ def test_replay_publishes_the_engines_rate_and_linear_acceleration(sim_bag, tmp_
 def mixed_endian(src: Path, dst: Path, stop_s: float) -> Path:
     """The first ``stop_s`` of rosbag2 ``src`` with its messages in runs of 7 alternately little- and big-endian CDR:
     replay picks its path (bytes patched, or deserialized) message by message."""
-    from rosbags.rosbag2 import StoragePlugin, Writer
-
-    from ccf_ros.offline.bagio import typestore
-
-    ts = typestore()
-    with open_bag(src) as reader, Writer(dst, version=9, storage_plugin=StoragePlugin.MCAP) as w:
-        out = {c.id: w.add_connection(c.topic, c.msgtype, typestore=ts) for c in reader.connections}
-        t0 = None
-        for k, (c, t, raw) in enumerate(reader.messages()):
-            t0 = t if t0 is None else t0
-            if t - t0 > stop_s * 1e9:
-                break
-            msg = reader.deserialize(raw, c.msgtype)
-            w.write(out[c.id], t, ts.serialize_cdr(msg, c.msgtype, little_endian=(k // 7) % 2 == 0))
-    return dst
+    return copy_bag(src, dst, stop_s=stop_s, little_endian=lambda k: (k // 7) % 2 == 0)
 
 
 def test_both_paths_write_the_same_bytes(sim_bag, tmp_path):

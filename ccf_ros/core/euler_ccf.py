@@ -171,19 +171,8 @@ class EulerCcf(OrientationFilter):
         self._q = quat_of_rpy(self._x[0], self._x[1], self._x[2])
 
     def _step(
-        self,
-        dt: float,
-        gx: float,
-        gy: float,
-        gz: float,
-        ax: float,
-        ay: float,
-        az: float,
-        acc_n2: float,
-        mx: float,
-        my: float,
-        mz: float,
-        mag_n2: float,
+        self, dt: float, gx: float, gy: float, gz: float, ax: float, ay: float, az: float, acc_n2: float,
+        mx: float, my: float, mz: float, mag_n2: float,
     ) -> None:
         x = self._x
         rates = euler_rates(x[0], x[1], gx, gy, gz)
@@ -274,6 +263,8 @@ class Lcf(OrientationFilter):
         self, dt: float, gx: float, gy: float, gz: float, ax: float, ay: float, az: float, acc_n2: float,
         mx: float, my: float, mz: float, mag_n2: float,
     ) -> None:
+        # The same first lines as EulerCcf._step, written out: a shared helper would add a call per sample on the
+        # hot path (a repeat on purpose).
         x = self._x
         rates = euler_rates(x[0], x[1], gx, gy, gz)
         alpha = self._alpha

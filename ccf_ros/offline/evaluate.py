@@ -1,14 +1,17 @@
-"""``ccf eval``: score an orientation topic against a reference orientation topic."""
+"""``ccf eval``: score an orientation topic against a reference orientation topic; and the engine run over arrays to
+score (:func:`engine_orientations`)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..core.metrics import ErrorSummary, summarize
-from ..core.quaternion import quat_slerp
+from ..core.quaternion import from_xyzw, quat_slerp
+from ..engine import ImuEngine
 from ..errors import BagError
 from .bagio import read_bools, read_orientations
 
@@ -102,3 +105,23 @@ def format_summary(s: ErrorSummary, label: str = 'estimate') -> str:
             f'  paper  RMSE roll {r:.4f}  pitch {p:.4f}  yaw {y:.4f} rad   mean (eq 17) {s.mean_rmse_rad:.4f} rad',
         ]
     )
+
+
+def engine_orientations(engine: ImuEngine, t: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray,
+                        after: Callable[[int, float], None] | None = None) -> np.ndarray:
+    """The engine's orientations over arrays, fed as replay feeds it (each sample's magnetometer first, then the IMU):
+    stamps ``t`` (N,) s, ``gyr`` (N,3) rad/s, ``acc`` (N,3) m/s², ``mag`` (N,3) (a row with a NaN: no magnetometer
+    message). Returns (N,4) [w, x, y, z], NaN where the engine gave no answer; ``after(k, t_k)`` is called after each
+    sample (to look at the engine's state on the way)."""
+    q = np.full((len(t), 4), np.nan)
+    tl, gl, al, ml = t.tolist(), gyr.tolist(), acc.tolist(), mag.tolist()
+    has_mag = np.all(np.isfinite(mag), axis=1).tolist()
+    for k in range(len(tl)):
+        if has_mag[k]:
+            engine.on_mag(tl[k], tuple(ml[k]))
+        out = engine.on_imu(tl[k], tuple(gl[k]), tuple(al[k]))
+        if out is not None:
+            q[k] = from_xyzw(*out.orientation_xyzw)
+        if after is not None:
+            after(k, tl[k])
+    return q

@@ -139,6 +139,29 @@ def _sense(
     return gyr, acc, mag, bias
 
 
+def _record(
+    rng: np.random.Generator, q: np.ndarray, acc_world: np.ndarray, tr: np.ndarray, rate_hz: float, t0_s: float,
+    rest_s: float, noise: tuple[float, float, float, float, float],
+) -> SimData:
+    """The recording of a motion given by its orientation ``q`` (N,4, body->ENU) and specific force in the world
+    ``acc_world`` (N,3, m/s², gravity included) at times ``tr`` (N, s, a uniform step of 1/``rate_hz``): the body
+    rate from ``q``'s derivative (central differences, one-sided at the ends), the sensors read by :func:`_sense`
+    with ``noise`` = (gyro_noise_rad_s, acc_noise_m_s2, mag_noise_t, bias_init_rad_s, bias_walk_rad_s_sqrt_s),
+    ``moving`` from ``rest_s``."""
+    omega = 2.0 * quat_mul(quat_conj(q), np.gradient(q, 1.0 / rate_hz, axis=0))[:, 1:]
+    gyr, acc, mag, bias = _sense(
+        rng, q, omega, acc_world, tr, rate_hz, gyro_noise_rad_s=noise[0], acc_noise_m_s2=noise[1],
+        mag_noise_t=noise[2], bias_init_rad_s=noise[3], bias_walk_rad_s_sqrt_s=noise[4],
+    )
+    return SimData(t_s=t0_s + tr, q_true=q, gyr=gyr, acc=acc, mag=mag, bias=bias, moving=tr >= rest_s)
+
+
+def _acceleration(pos: np.ndarray, dt: float) -> np.ndarray:
+    """The specific force in the world (N,3, m/s²) of a sensor at positions ``pos`` (N,3, m) every ``dt`` (s):
+    the positions' second derivative plus gravity (up)."""
+    return np.gradient(np.gradient(pos, dt, axis=0), dt, axis=0) + [0.0, 0.0, G]
+
+
 def generate(
     duration_s: float = 60.0,
     rate_hz: float = 286.0,
@@ -274,17 +297,11 @@ def generate_vehicle(
     roll = camber + pitch_per_m_s2_rad * lateral
     yaw = np.cumsum(yaw_rate) * dt + rng.uniform(-np.pi, np.pi)
     q = euler_to_quat(roll, pitch, yaw)
-    # Body rates from the orientation's derivative (central differences); the first and last by one-sided ones.
-    dq = np.gradient(q, dt, axis=0)
-    omega = 2.0 * quat_mul(quat_conj(q), dq)[:, 1:]
     # Specific force: the vehicle's acceleration in the world (along the heading, and centripetal), plus gravity.
     c, s = np.cos(yaw), np.sin(yaw)
     acc_world = np.stack((along * c - lateral * s, along * s + lateral * c, np.full(n, G)), axis=1)
-    gyr, acc, mag, bias = _sense(
-        rng, q, omega, acc_world, tr, rate_hz, gyro_noise_rad_s=gyro_noise_rad_s, acc_noise_m_s2=acc_noise_m_s2,
-        mag_noise_t=mag_noise_t, bias_init_rad_s=bias_init_rad_s, bias_walk_rad_s_sqrt_s=bias_walk_rad_s_sqrt_s,
-    )
-    return SimData(t_s=t0_s + tr, q_true=q, gyr=gyr, acc=acc, mag=mag, bias=bias, moving=tr >= rest_s)
+    noise = (gyro_noise_rad_s, acc_noise_m_s2, mag_noise_t, bias_init_rad_s, bias_walk_rad_s_sqrt_s)
+    return _record(rng, q, acc_world, tr, rate_hz, t0_s, rest_s, noise)
 
 
 def generate_swing(
@@ -339,17 +356,10 @@ def generate_swing(
                                       quat_from_rotvec(np.stack((0 * tr, 0 * tr, twist), axis=1))))
     mount = quat_from_rotvec(rng.uniform(-np.pi, np.pi, 3) * rng.uniform(0.0, 1.0))
     q = quat_mul(q_rod, mount)
-    dt = 1.0 / rate_hz
-    dq = np.gradient(q, dt, axis=0)
-    omega = 2.0 * quat_mul(quat_conj(q), dq)[:, 1:]
     # The sensor hangs length_m below the pivot: its acceleration from the rod's rotation.
-    pos = quat_rotate(q_rod, np.broadcast_to([0.0, 0.0, -length_m], (n, 3)))
-    acc_world = np.gradient(np.gradient(pos, dt, axis=0), dt, axis=0) + [0.0, 0.0, G]
-    gyr, acc, mag, bias = _sense(
-        rng, q, omega, acc_world, tr, rate_hz, gyro_noise_rad_s=gyro_noise_rad_s, acc_noise_m_s2=acc_noise_m_s2,
-        mag_noise_t=mag_noise_t, bias_init_rad_s=bias_init_rad_s, bias_walk_rad_s_sqrt_s=bias_walk_rad_s_sqrt_s,
-    )
-    return SimData(t_s=t0_s + tr, q_true=q, gyr=gyr, acc=acc, mag=mag, bias=bias, moving=tr >= rest_s)
+    acc_world = _acceleration(quat_rotate(q_rod, np.broadcast_to([0.0, 0.0, -length_m], (n, 3))), 1.0 / rate_hz)
+    noise = (gyro_noise_rad_s, acc_noise_m_s2, mag_noise_t, bias_init_rad_s, bias_walk_rad_s_sqrt_s)
+    return _record(rng, q, acc_world, tr, rate_hz, t0_s, rest_s, noise)
 
 
 def generate_spin(
@@ -390,16 +400,10 @@ def generate_spin(
     roll = wobble_rad * ramp * np.sin(2 * np.pi * rng.uniform(0.2, 0.5) * tr + rng.uniform(0, 6.3))
     pitch = wobble_rad * ramp * np.sin(2 * np.pi * rng.uniform(0.2, 0.5) * tr + rng.uniform(0, 6.3))
     q = euler_to_quat(roll, pitch, yaw)
-    dq = np.gradient(q, dt, axis=0)
-    omega = 2.0 * quat_mul(quat_conj(q), dq)[:, 1:]
-    lever = 0.1
-    pos = lever * np.stack((np.cos(yaw), np.sin(yaw), 0 * yaw), axis=1)
-    acc_world = np.gradient(np.gradient(pos, dt, axis=0), dt, axis=0) + [0.0, 0.0, G]
-    gyr, acc, mag, bias = _sense(
-        rng, q, omega, acc_world, tr, rate_hz, gyro_noise_rad_s=gyro_noise_rad_s, acc_noise_m_s2=acc_noise_m_s2,
-        mag_noise_t=mag_noise_t, bias_init_rad_s=bias_init_rad_s, bias_walk_rad_s_sqrt_s=bias_walk_rad_s_sqrt_s,
-    )
-    return SimData(t_s=t0_s + tr, q_true=q, gyr=gyr, acc=acc, mag=mag, bias=bias, moving=tr >= rest_s)
+    lever = 0.1  # m, the IMU off the turning axis
+    acc_world = _acceleration(lever * np.stack((np.cos(yaw), np.sin(yaw), 0 * yaw), axis=1), dt)
+    noise = (gyro_noise_rad_s, acc_noise_m_s2, mag_noise_t, bias_init_rad_s, bias_walk_rad_s_sqrt_s)
+    return _record(rng, q, acc_world, tr, rate_hz, t0_s, rest_s, noise)
 
 
 def with_mag_distortion(data: SimData, offset_t: Any, soft_iron: Any = None) -> SimData:

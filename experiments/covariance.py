@@ -5,7 +5,7 @@ Per trial, over the moving samples: inclination -- sqrt(mean(var_roll + var_pitc
 relative, vs the heading RMSE after fitting one heading offset per trial (the drift). Ratios near 1 mean a
 downstream EKF can trust the IMU's covariance. Also the 48 Hz / 286 Hz ratio of the reported sigma (rate independence).
 
-Usage: python benchmarks/covariance.py [--shared ../shared/data/broad] [NAME=VALUE ...]
+Usage: python experiments/covariance.py [--shared ../shared/data/broad] [NAME=VALUE ...]
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ For each offset, total RMSE (deg) over the moving samples:
   sample (a robot restarted while moving: no rest to learn from), loads it; scored over its first 60 s of motion,
   beside the same start without the file and the clean trial's same window.
 
-Usage: python benchmarks/gyro_offset.py [--shared ../shared/data/broad] [--trials 02] [--offsets 5,10] [NAME=VALUE ...]
+Usage: python experiments/gyro_offset.py [--shared ../shared/data/broad] [--trials 02] [--offsets 5,10] [NAME=VALUE ...]
 """
 
 from __future__ import annotations
@@ -27,11 +27,9 @@ WINDOW_S = 60.0
 
 
 def main() -> None:
-    ap = parser(__doc__)
+    ap = parser(__doc__, trials='02')
     ap.add_argument('--offsets', default='5,10', help='offsets to add, deg/s (every axis)')
     a = ap.parse_args()
-    if not a.trials:
-        a.trials = '02'
     trials, settings = trials_and_settings(a)
     for trial in trials:
         imu = read_imu_arrays(trial)

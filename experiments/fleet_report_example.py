@@ -2,7 +2,7 @@
 and its vibration rising from day to day, one day of robot_a losing samples; ``ccf fleet run`` over them and the
 report's trend plot of robot_b copied to the doc folder.
 
-    .venv/bin/python benchmarks/fleet_report_example.py [--output doc/fleet_report_example.png]
+    .venv/bin/python experiments/fleet_report_example.py [--output doc/fleet_report_example.png]
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@
    body-fixed offset: expected better).
 3. Cost: the engine's time per sample on one trial, off and on, interleaved (one run; a ratio).
 
-Usage: python benchmarks/online_hard_iron.py [--shared DIR] [--trials 30,33] [--skip-sim] [NAME=VALUE ...]
+Usage: python experiments/online_hard_iron.py [--shared DIR] [--trials 30,33] [--skip-sim] [NAME=VALUE ...]
 (offline, no rclpy)
 """
 
@@ -22,10 +22,9 @@ import numpy as np
 from _trials import map_trials, parser, trials_and_settings
 
 from ccf_ros.core.metrics import summarize
-from ccf_ros.core.quaternion import from_xyzw
 from ccf_ros.engine import ImuEngine
 from ccf_ros.offline.bagio import read_bools, read_imu_arrays, read_orientations
-from ccf_ros.offline.evaluate import align, mask_at
+from ccf_ros.offline.evaluate import align, engine_orientations, mask_at
 from ccf_ros.offline.simulate import dipole_field, generate, with_mag_distortion
 from ccf_ros.settings import build
 
@@ -37,21 +36,16 @@ def run_engine(settings: dict, t: np.ndarray, gyr: np.ndarray, acc: np.ndarray, 
                probe_s: float | None = None) -> tuple[np.ndarray, ImuEngine, object]:
     """Orientations (N, 4) [w, x, y, z] of the engine on the arrays (mag NaN rows: no message); the engine; and its
     hard-iron status at ``t[0] + probe_s`` (None if not asked)."""
-    filt, adapter = build(settings)
-    eng = ImuEngine(filt, adapter)
-    q = np.full((len(t), 4), np.nan)
-    tl, gl, al, ml = t.tolist(), gyr.tolist(), acc.tolist(), mag.tolist()
-    has_mag = np.all(np.isfinite(mag), axis=1).tolist()
-    probe, t_probe = None, (tl[0] + probe_s) if probe_s is not None else None
-    for k in range(len(tl)):
-        if has_mag[k]:
-            eng.on_mag(tl[k], tuple(ml[k]))
-        out = eng.on_imu(tl[k], tuple(gl[k]), tuple(al[k]))
-        if out is not None:
-            q[k] = from_xyzw(*out.orientation_xyzw)
-        if t_probe is not None and probe is None and tl[k] >= t_probe:
-            probe = eng.hard_iron_status()
-    return q, eng, probe
+    eng = ImuEngine(*build(settings))
+    t_probe = t[0] + probe_s if probe_s is not None else None
+    probe: list[object] = []
+
+    def look(_k: int, t_k: float) -> None:
+        if t_probe is not None and not probe and t_k >= t_probe:
+            probe.append(eng.hard_iron_status())
+
+    q = engine_orientations(eng, t, gyr, acc, mag, look)
+    return q, eng, probe[0] if probe else None
 
 
 def simulated() -> None:

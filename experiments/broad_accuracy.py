@@ -1,6 +1,6 @@
 """Accuracy of the default filter on the shared BROAD trials, through ``ccf replay``'s engine, at 286/95/48 Hz.
 
-Usage: python benchmarks/broad_accuracy.py [--shared ../shared/data/broad] [--rates 1,3,6] [--no-6d] [NAME=VALUE ...]
+Usage: python experiments/broad_accuracy.py [--shared ../shared/data/broad] [--rates 1,3,6] [--no-6d] [NAME=VALUE ...]
 Prints per-trial total/heading/inclination RMSE (deg) and the mean, beside the VQF columns of
 shared/data/broad/README.md; and the 6-D run (no magnetometer) scored with one heading offset fitted per trial.
 Lower rates are made two ways: every n-th sample (point samples, the usual benchmark) and the mean of each n samples

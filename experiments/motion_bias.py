@@ -13,7 +13,7 @@ rate: the bias and whatever else varies slowly, such as ``K w``), bias learning 
 Its inclination and 6-D (heading offset fitted) errors show what knowing the gyro error while moving is worth; it is
 non-causal and carries the reference's own errors.
 
-Usage: python benchmarks/motion_bias.py [--shared ../shared/data/broad] [--trials 02,11] [--window 20] [NAME=VALUE ...]
+Usage: python experiments/motion_bias.py [--shared ../shared/data/broad] [--trials 02,11] [--window 20] [NAME=VALUE ...]
 """
 
 from __future__ import annotations

@@ -15,7 +15,7 @@ Cases (the offset is (30, -12, 8) µT, as a motor or a magnet near the sensor gi
    already calibrated, and an ellipsoid fitted to it absorbs the lab field's non-uniformity, which costs heading
    (see ccf_ros/magcal/ellipsoid.py) -- the yardstick of a soft-iron calibration on this data.
 
-Usage: python benchmarks/calibrate_mag.py [--trial NAME | --bag BAG]
+Usage: python checks/calibrate_mag.py [--trial NAME | --bag BAG]
 (offline only: no rclpy, nothing on the network; ~30 s)
 """
 

@@ -22,7 +22,7 @@ A second table, magnetic environments, at 40, 100 and 286 Hz (``--mag`` only it,
   carried 2 m away over 4 s: heading RMSE from 60 s after leaving, minus a clean run's;
 * *planar swing*: a pendulum (0.5 m, pushed to 10-45°, 200 s) in 6-D: heading RMSE with one offset fitted.
 
-Usage: python benchmarks/simulated_accuracy.py [--seeds 0,1,2] [--vqf] [--mag | --no-mag-envs] [NAME=VALUE ...]
+Usage: python experiments/simulated_accuracy.py [--seeds 0,1,2] [--vqf] [--mag | --no-mag-envs] [NAME=VALUE ...]
 """
 
 from __future__ import annotations

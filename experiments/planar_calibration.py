@@ -8,7 +8,7 @@ field) and once without (the offset along the axis is then left at 0). Heading R
 engine with the calibration YAML is printed beside the clean recording's and the uncalibrated one's, on the spin
 itself and on a 300 s drive (``generate_vehicle``) with the same distortion.
 
-Usage: python benchmarks/planar_calibration.py [--seed N]   (offline, no rclpy; ~30 s)
+Usage: python experiments/planar_calibration.py [--seed N]   (offline, no rclpy; ~30 s)
 """
 
 from __future__ import annotations
@@ -23,8 +23,8 @@ import numpy as np
 
 from ccf_ros.cli import main as ccf
 from ccf_ros.core.metrics import summarize
-from ccf_ros.core.quaternion import from_xyzw
 from ccf_ros.engine import ImuEngine
+from ccf_ros.offline.evaluate import engine_orientations
 from ccf_ros.offline.params_file import load_params_file
 from ccf_ros.offline.simulate import SimData, generate_spin, generate_vehicle, with_mag_distortion, write_bag
 from ccf_ros.settings import build
@@ -36,15 +36,7 @@ SOFT_IRON = np.array([[1.05, 0.03, 0.0], [0.03, 0.96, 0.0], [0.0, 0.0, 1.0]])
 
 def heading_deg(data: SimData, params: dict | None = None) -> float:
     """Heading RMSE (deg) over the moving samples of the engine (defaults + ``params``) on ``data``."""
-    filt, adapter = build(params or {})
-    eng = ImuEngine(filt, adapter)
-    q = np.full((len(data.t_s), 4), np.nan)
-    t, g, a, m = data.t_s.tolist(), data.gyr.tolist(), data.acc.tolist(), data.mag.tolist()
-    for k in range(len(t)):
-        eng.on_mag(t[k], tuple(m[k]))
-        out = eng.on_imu(t[k], tuple(g[k]), tuple(a[k]))
-        if out is not None:
-            q[k] = from_xyzw(*out.orientation_xyzw)
+    q = engine_orientations(ImuEngine(*build(params or {})), data.t_s, data.gyr, data.acc, data.mag)
     return summarize(q, data.q_true, data.moving).heading_rmse_deg
 
 

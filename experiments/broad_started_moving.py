@@ -2,7 +2,7 @@
 bag that begins mid-motion): heading RMSE over the moving samples from 10 s after the start to the end of the trial,
 for starts at 30, 40 and 55 % of each of the nine shared trials. Defaults unless NAME=VALUE settings are given.
 
-Usage: python benchmarks/broad_started_moving.py [--shared ../shared/data/broad] [NAME=VALUE ...]
+Usage: python experiments/broad_started_moving.py [--shared ../shared/data/broad] [NAME=VALUE ...]
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@ signs), simulated hand-held motion from the first sample (no rest), 400 s at 200
 6-D. Prints per motion the largest per-axis bias error at 60/120/200/300/400 s and the time after which it stays
 within 0.1 °/s.
 
-Usage: python benchmarks/bias_while_moving.py [--seeds 1,2,3,4,5,6] [NAME=VALUE ...]
+Usage: python experiments/bias_while_moving.py [--seeds 1,2,3,4,5,6] [NAME=VALUE ...]
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@
 2. 10 s of the trial at 3x its rate (858 Hz) with the node's default sensor-data QoS (best effort, depth 50):
    whatever DDS drops must be reported by the node's diagnostics.
 
-Usage: python benchmarks/node_faults.py
+Usage: python checks/node_faults.py
 """
 
 from __future__ import annotations

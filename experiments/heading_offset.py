@@ -7,7 +7,7 @@ rotated by the reference orientation; 0 = the reference's north), its mean at re
 change of heading offset from rest to moving equals the field's change of direction, that offset is the recording's:
 the magnetometer's north where the IMU moves is not its north where it rests.
 
-Usage: python benchmarks/heading_offset.py [--shared ../shared/data/broad] [--trials 02,11] [NAME=VALUE ...]
+Usage: python experiments/heading_offset.py [--shared ../shared/data/broad] [--trials 02,11] [NAME=VALUE ...]
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@ and at an arbitrary angle (gyro, accelerometer and magnetometer), replayed throu
 ``mount_rotation``; and the magnetometer alone turned, with ``mag_rotation``. Each should score as the unrotated
 trial (total RMSE within 1 %; in fact to rounding).
 
-Usage: python benchmarks/mounting.py [--shared ../shared/data/broad] [--trials 02] [NAME=VALUE ...]
+Usage: python experiments/mounting.py [--shared ../shared/data/broad] [--trials 02] [NAME=VALUE ...]
 """
 
 from __future__ import annotations
@@ -64,10 +64,8 @@ def score(trial: Path, t: np.ndarray, q: np.ndarray, window: tuple[float, float]
 
 
 def main() -> None:
-    ap = parser(__doc__)
+    ap = parser(__doc__, trials='02')
     a = ap.parse_args()
-    if not a.trials:
-        a.trials = '02'
     trials, settings = trials_and_settings(a)
     for trial in trials:
         imu = read_imu_arrays(trial)

@@ -7,7 +7,7 @@ tilt path's ramp lag (tau_acc_lp_s + tau_acc_s, 3.5 s at the defaults): the scri
 constants scaled by 0.6 and 1.6 (lag 2.1 and 5.6 s), and with motion_bias off, to show what learning the bias while
 moving takes off the offset.
 
-Usage: python benchmarks/inclination_offset.py [--shared ../shared/data/broad] [--trials 02,11,16] [NAME=VALUE ...]
+Usage: python experiments/inclination_offset.py [--shared ../shared/data/broad] [--trials 02,11,16] [NAME=VALUE ...]
 """
 
 from __future__ import annotations

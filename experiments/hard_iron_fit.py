@@ -9,7 +9,7 @@ the magnetometer. It is a batch fit with hindsight; where it makes heading worse
 translation through a non-uniform field, a magnet in the room, soft iron), which an online estimator would have to
 detect.
 
-Usage: python benchmarks/hard_iron_fit.py [--shared ../shared/data/broad] [--trials 02,27] [NAME=VALUE ...]
+Usage: python experiments/hard_iron_fit.py [--shared ../shared/data/broad] [--trials 02,27] [NAME=VALUE ...]
 """
 
 from __future__ import annotations

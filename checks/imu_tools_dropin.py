@@ -19,7 +19,7 @@ default is best effort, as imu_filter_madgwick's sensor-data QoS: over a played 
 not the node's, and "every input answered" checks the node); the complementary filter keeps its file's QoS
 (reliable, depth 10), so its bag is played at a pace its queue of 10 keeps up with.
 
-Usage: python benchmarks/imu_tools_dropin.py [--rate 4] [--complementary-rate 1] [--bag BAG]
+Usage: python checks/imu_tools_dropin.py [--rate 4] [--complementary-rate 1] [--bag BAG]
 (sets ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; uses ROS_DOMAIN_ID if set, else a random domain of its own)
 """
 

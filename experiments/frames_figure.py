@@ -1,7 +1,7 @@
 """Draw doc/frames.png: the output frame (base_link), the IMU's frame on a bracket (mount_rotation) and the
 magnetometer chip's frame (mag_rotation), as ccf_ros composes them.
 
-Usage: python benchmarks/frames_figure.py [-o doc/frames.png]
+Usage: python experiments/frames_figure.py [-o doc/frames.png]
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ clipping gyro, set_heading / set_gyro_bias / set_params / magnetometer_changed /
 (quaternion, NCF quaternion, bias, its sigma, variances, status, rest and disturbance flags, clipped count) must match
 bit for bit. Then the core ``update()`` cost per sample on a BROAD trial, before and after interleaved in one run.
 
-Usage: python benchmarks/core_identity.py [--before REV] [--shared DIR] [--no-speed] [--no-identity] [--quick]
+Usage: python checks/core_identity.py [--before REV] [--shared DIR] [--no-speed] [--no-identity] [--quick]
        [--reps N]
 """
 
@@ -20,18 +20,20 @@ import subprocess
 import sys
 import tempfile
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from types import ModuleType
 from typing import Any
 
 import numpy as np
-from _trials import DEFAULT_SHARED, map_trials
 
 from ccf_ros.core import ccf as after
 from ccf_ros.offline.bagio import read_imu_arrays
 from ccf_ros.offline.simulate import MAG_WORLD, field_change, generate
 
 ROOT = Path(__file__).resolve().parents[1]
+#: The shared BROAD trials beside the checkout.
+DEFAULT_SHARED = ROOT.parent / 'shared' / 'data' / 'broad'
 #: Non-default parameter sets (the ``use_mag`` of a 6-D run is added).
 PARAMS: dict[str, dict[str, Any]] = {
     'defaults': {},
@@ -223,7 +225,8 @@ def main() -> None:
     args = ap.parse_args()
     if not args.no_identity:
         t0 = time.time()
-        results = map_trials(compare, jobs(args.before, args.shared, args.quick))
+        with ProcessPoolExecutor(2) as ex:  # one worker per core of this machine
+            results = list(ex.map(compare, jobs(args.before, args.shared, args.quick)))
         bad = 0
         for name, n, n_diff, dq in results:
             print(f'{name:50s} {n:7d} samples  {"bit-identical" if not n_diff else f"{n_diff} DIFFER (max dq {dq:.3g})"}')

@@ -13,12 +13,13 @@ from typing import Any
 DEFAULT_SHARED = Path(__file__).resolve().parents[2] / 'shared' / 'data' / 'broad'
 
 
-def parser(doc: str) -> argparse.ArgumentParser:
-    """An argument parser with ``--shared DIR``, ``--trials NN,NN`` and ``NAME=VALUE ...`` filter settings; add more
-    before parsing."""
+def parser(doc: str, trials: str = '') -> argparse.ArgumentParser:
+    """An argument parser with ``--shared DIR``, ``--trials NN,NN`` (default ``trials``; empty: all) and
+    ``NAME=VALUE ...`` filter settings; add more before parsing."""
     ap = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument('--shared', type=Path, default=DEFAULT_SHARED, help='folder of the BROAD trials')
-    ap.add_argument('--trials', default='', help='comma-separated trial numbers, e.g. 02,11 (default: all)')
+    ap.add_argument('--trials', default=trials,
+                    help=f'comma-separated trial numbers, e.g. 02,11 (default: {trials or "all"})')
     ap.add_argument('params', nargs='*', help='NAME=VALUE filter settings')
     return ap
 
