@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import math
 import shutil
-import signal
 import subprocess
 import sys
 import time
@@ -22,6 +21,7 @@ from rcl_interfaces.msg import ParameterType  # noqa: E402
 from rclpy.parameter import Parameter, parameter_value_to_python  # noqa: E402
 from rclpy.parameter_client import AsyncParameterClient  # noqa: E402
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, ReliabilityPolicy  # noqa: E402
+from rosutil import stop_node  # noqa: E402
 from std_msgs.msg import Bool  # noqa: E402
 from test_node import IMU, MAG, RELIABLE, Harness, _imu_only, _ref_xyzw, _replay_reference, _xyzw  # noqa: E402
 
@@ -535,13 +535,7 @@ def test_imu_filter_yaml_on_the_installed_madgwick_executable(context, inputs):
         assert len(h.out) == 60
         np.testing.assert_array_equal(_xyzw(h.out), _ref_xyzw(_replay_reference(msgs)))
     finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            out, _ = proc.communicate(timeout=20)
-        finally:
-            h.close()
-    assert proc.returncode == 0, out
-    assert 'Traceback' not in out
+        out = stop_node(proc, h)
     assert '[imu_filter]' in out
     if tf_message_type() is None:
         assert out.count(TF_UNAVAILABLE) == 1, out

@@ -22,7 +22,7 @@ from geometry_msgs.msg import Vector3Stamped  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
-from rosutil import big_endian_cdr, read_inputs  # noqa: E402
+from rosutil import big_endian_cdr, read_inputs, stop_node  # noqa: E402
 from sensor_msgs.msg import Imu, MagneticField  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
@@ -547,13 +547,7 @@ def test_installed_node_in_a_namespace_answers_and_exits_cleanly(context, inputs
         assert len(h.out) == 600
         np.testing.assert_array_equal(_xyzw(h.out), _ref_xyzw(_replay_reference(inputs[:1200], {'use_mag': False})))
     finally:
-        proc.send_signal(sig)
-        try:
-            out, _ = proc.communicate(timeout=20)
-        finally:
-            h.close()
-    assert proc.returncode == 0, out
-    assert 'Traceback' not in out
+        stop_node(proc, h, sig)
 
 
 

@@ -554,6 +554,8 @@ class _Replayer:
             mags: list[Any] = []
             rejected: list[bool] = []
             add_mag, add_rej = mags.append, rejected.append
+            # Hot path, the same shape as fleet.task's health-only loop (which keeps no answers): written out in
+            # both, as a shared helper would cost a call per sample.
             for is_imu, t, a, b in zip(imu.tolist(), t_all.tolist(), vec1, vec2, strict=True):
                 if is_imu:
                     add(on_imu(t, a, b))
