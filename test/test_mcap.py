@@ -158,22 +158,16 @@ def test_overlapping_chunks_stream_one_neighbour_at_a_time(tmp_path):
 
 def _frames_varied(src: Path, dst: Path, stop_s: float) -> Path:
     """The first ``stop_s`` of ``src`` with IMU frame_ids of three lengths: the records differ in length and header."""
-    from rosbags.rosbag2 import StoragePlugin, Writer
+    from test_offline import rewrite_bag
 
-    ts = typestore()
-    with open_bag(src) as reader, Writer(dst, version=9, storage_plugin=StoragePlugin.MCAP) as w:
-        out = {c.id: w.add_connection(c.topic, c.msgtype, typestore=ts) for c in reader.connections}
-        t0 = None
-        for k, (c, t, raw) in enumerate(reader.messages()):
-            t0 = t if t0 is None else t0
-            if t - t0 > stop_s * 1e9:
-                break
-            if c.msgtype == 'sensor_msgs/msg/Imu':
-                msg = reader.deserialize(raw, c.msgtype)
-                msg.header.frame_id = ('imu', 'imu_link', 'a_long_imu_frame')[k % 3]
-                raw = ts.serialize_cdr(msg, c.msgtype)
-            w.write(out[c.id], t, raw)
-    return dst
+    def change(k, msgtype, raw, deserialize, ts):
+        if msgtype != 'sensor_msgs/msg/Imu':
+            return raw
+        msg = deserialize(raw, msgtype)
+        msg.header.frame_id = ('imu', 'imu_link', 'a_long_imu_frame')[k % 3]
+        return ts.serialize_cdr(msg, msgtype)
+
+    return rewrite_bag(src, dst, stop_s, change)
 
 
 @pytest.mark.parametrize('params', [[], ['bias_corrected_rate=true', 'remove_gravity_vector=true']])

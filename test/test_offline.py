@@ -305,9 +305,9 @@ def test_replay_publishes_the_engines_rate_and_linear_acceleration(sim_bag, tmp_
         assert np.median(np.abs(got.acc - raw.acc)[:, 2]) > 9.0  # gravity, mostly along z here
 
 
-def mixed_endian(src: Path, dst: Path, stop_s: float) -> Path:
-    """The first ``stop_s`` of rosbag2 ``src`` with its messages in runs of 7 alternately little- and big-endian CDR:
-    replay picks its path (bytes patched, or deserialized) message by message."""
+def rewrite_bag(src: Path, dst: Path, stop_s: float, change) -> Path:
+    """The first ``stop_s`` of rosbag2 ``src`` as MCAP bag ``dst``, each message's bytes as
+    ``change(k, msgtype, raw, deserialize, typestore)`` gives them (``k``: the message's index)."""
     from rosbags.rosbag2 import StoragePlugin, Writer
 
     from ccf_ros.offline.bagio import typestore
@@ -320,9 +320,18 @@ def mixed_endian(src: Path, dst: Path, stop_s: float) -> Path:
             t0 = t if t0 is None else t0
             if t - t0 > stop_s * 1e9:
                 break
-            msg = reader.deserialize(raw, c.msgtype)
-            w.write(out[c.id], t, ts.serialize_cdr(msg, c.msgtype, little_endian=(k // 7) % 2 == 0))
+            w.write(out[c.id], t, change(k, c.msgtype, raw, reader.deserialize, ts))
     return dst
+
+
+def mixed_endian(src: Path, dst: Path, stop_s: float) -> Path:
+    """The first ``stop_s`` of rosbag2 ``src`` with its messages in runs of 7 alternately little- and big-endian CDR:
+    replay picks its path (bytes patched, or deserialized) message by message."""
+
+    def change(k, msgtype, raw, deserialize, ts):
+        return ts.serialize_cdr(deserialize(raw, msgtype), msgtype, little_endian=(k // 7) % 2 == 0)
+
+    return rewrite_bag(src, dst, stop_s, change)
 
 
 def test_both_paths_write_the_same_bytes(sim_bag, tmp_path):
