@@ -43,9 +43,10 @@ class Path(Protocol[Src]):
     #: whether answers are turned into the output frame (a new frame_id and/or rotated covariances)
     reframes: bool
 
-    def read_imu(self, raw: bytes) -> tuple[float, Src, int, Vec3, Vec3]:
-        """Stamp (s), the source to answer from, the offset of ``orientation`` in it (0 for a message), angular
-        velocity (rad/s) and linear acceleration (m/s²) of a serialized Imu."""
+    def read_imu(self, raw: bytes) -> tuple[float, Path[Src], Src, int, Vec3, Vec3]:
+        """A serialized Imu as a caller holds it until answered: stamp (s), this path, the source to answer from,
+        the offset of ``orientation`` in it (0 for a message), angular velocity (rad/s), linear acceleration (m/s²).
+        (The path in the tuple saves the node building a second one per message.)"""
         ...
 
     def read_mag(self, raw: bytes) -> tuple[float, Vec3]:
@@ -103,11 +104,11 @@ class FastCdrPath:
         self._rot = rot
         self.reframes = self._frame is not None or rot is not None
 
-    def read_imu(self, raw: bytes) -> tuple[float, bytes, int, Vec3, Vec3]:
+    def read_imu(self, raw: bytes) -> tuple[float, FastCdrPath, bytes, int, Vec3, Vec3]:
         t, off, gyr, acc = read_imu(raw)
         if len(raw) < off + self._tail:
             raise ValueError('too short for an Imu')
-        return t, raw, off, gyr, acc
+        return t, self, raw, off, gyr, acc
 
     def answer(self, src: bytes | bytearray, off: int, out: Output) -> tuple[Any, bytearray, int]:
         if self.reframes:
@@ -145,10 +146,10 @@ class MessagePath:
         self._rot = rot
         self.reframes = bool(frame) or rot is not None
 
-    def read_imu(self, raw: bytes) -> tuple[float, Any, int, Vec3, Vec3]:
+    def read_imu(self, raw: bytes) -> tuple[float, MessagePath, Any, int, Vec3, Vec3]:
         msg = self._deserialize_imu(raw)
         g, a = msg.angular_velocity, msg.linear_acceleration
-        return stamp_s(msg.header), msg, 0, (g.x, g.y, g.z), (a.x, a.y, a.z)
+        return stamp_s(msg.header), self, msg, 0, (g.x, g.y, g.z), (a.x, a.y, a.z)
 
     def read_mag(self, raw: bytes) -> tuple[float, Vec3]:
         msg = self._deserialize_mag(raw)

@@ -583,12 +583,12 @@ class CcfNode(Node):
         # Little-endian CDR: the bytes are read and patched; else (big-endian) deserialized, answered as a message.
         path: Path[Any] = self._fast if data[:2] == LITTLE_ENDIAN_CDR else self._slow
         try:
-            t, src, off, gyr, acc = path.read_imu(data)
+            item: Held = path.read_imu(data)
         except Exception as err:  # a truncated or foreign payload must not stop the node
             self.stats.n_unreadable += 1
             self._warn_throttled(f'unreadable IMU message ({len(data)} bytes) dropped: {err}')
             return
-        item: Held = (t, path, src, off, gyr, acc)
+        t = item[0]
         self.stats.on_imu(t, now)
         sync = self.sync
         if sync.on_imu(t, item, now):

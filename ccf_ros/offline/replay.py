@@ -251,7 +251,7 @@ class _Path:
         del self.on_imu
         if self._engine.wants_sensor_frame:
             try:
-                self._engine.set_sensor_frame(self.way.frame_id(self._read_imu(raw)[1]))
+                self._engine.set_sensor_frame(self.way.frame_id(self._read_imu(raw)[2]))
             except (struct.error, IndexError) as err:
                 raise unreadable(self._bag, err) from err
         return self.on_imu(raw)
@@ -259,7 +259,7 @@ class _Path:
     def on_imu(self, raw: bytes) -> tuple[Any, int, Output] | None:
         """Feed an IMU sample to the engine; None: the engine gives no answer (nothing is written)."""
         try:
-            t, src, off, gyr, acc = self._read_imu(raw)
+            t, _, src, off, gyr, acc = self._read_imu(raw)
         except struct.error as err:  # CDR bytes shorter than an Imu
             raise unreadable(self._bag, err) from err
         out = self._on_imu(t, gyr, acc)
