@@ -65,8 +65,8 @@ def _settings(args: argparse.Namespace) -> tuple[dict[str, Any], dict[str, Any]]
 def engine_settings(args: argparse.Namespace) -> tuple[dict[str, Any], bool]:
     """The merged settings the engine is built from (profile defaults, then files, then ``--param``) and whether
     they are checked strictly; checked here, so a bad value is one error before any bag is read."""
-    from .compat import PROFILES, apply_do_bias_estimation
     from .core.registry import SELECTORS
+    from .node.compat import PROFILES, apply_do_bias_estimation
     from .settings import build
 
     from_files, given = _settings(args)

@@ -13,6 +13,8 @@ from launch_ros.actions import Node
 from launch import LaunchDescription
 
 
+# Standalone on purpose, like the imu_tools launch file it replaces (ros2 launch reads it by path, a user copies
+# it): the two drop-ins' launch files differ only in executable, node name and the parameters file's wording.
 def _node(context):
     params = LaunchConfiguration('params_file').perform(context)
     return [Node(

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from ccf_ros.offline.messages import stamp_s
+from ccf_ros.messages.convert import stamp_s
 
 # Network rule: DDS traffic never leaves the loopback interface, and every test gets a domain of its own (see
 # ros_domain below). ROS_DOMAIN_ID from the environment is not used: the fixture sets it per test.

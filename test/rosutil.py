@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import functools
+import signal
 from pathlib import Path
+from typing import Any
 
 from ccf_ros.offline.bagio import open_bag
 
@@ -56,3 +58,16 @@ def big_endian_cdr(msg: object) -> bytes:
     data = bytes(ts.serialize_cdr(little, name, little_endian=False))
     assert data[:2] == b'\x00\x00'  # CDR_BE
     return data
+
+
+def stop_node(proc: Any, harness: Any, sig: int = signal.SIGINT) -> str:
+    """Stop a node process with ``sig`` and close the test harness; the node must exit cleanly (code 0, no
+    traceback). Returns its output."""
+    proc.send_signal(sig)
+    try:
+        out, _ = proc.communicate(timeout=20)
+    finally:
+        harness.close()
+    assert proc.returncode == 0, out
+    assert 'Traceback' not in out
+    return str(out)

@@ -8,7 +8,11 @@ import math
 import numpy as np
 import pytest
 
-from ccf_ros.compat import (
+from ccf_ros.core.quaternion import quat_mul, quat_to_euler, rpy_of
+from ccf_ros.engine import ImuEngine
+from ccf_ros.errors import ParameterError
+from ccf_ros.messages.cdr import header as imu_header
+from ccf_ros.node.compat import (
     MEANINGLESS_GAINS,
     PROFILES,
     apply_do_bias_estimation,
@@ -18,10 +22,8 @@ from ccf_ros.compat import (
     gain_notices,
     tf_transform,
 )
-from ccf_ros.core.quaternion import quat_mul, quat_to_euler, rpy_of
-from ccf_ros.engine import ImuEngine
-from ccf_ros.errors import ParameterError
-from ccf_ros.node_support import coerce_parameter, imu_header, parameter_range, raw_rpy
+from ccf_ros.node.debug import raw_rpy
+from ccf_ros.node.parameters import coerce_parameter, parameter_range
 from ccf_ros.settings import IMU_TOOLS_GAINS, all_defaults, build
 
 

@@ -906,9 +906,10 @@ def test_the_engine_counts_clipped_gyro_samples_across_resets_and_diagnostics_sh
     import time
 
     from ccf_ros.engine import ImuEngine
-    from ccf_ros.node_support import InputStats, diagnostics
+    from ccf_ros.node.diagnostics import diagnostics
+    from ccf_ros.node.stats import InputStats
+    from ccf_ros.node.sync import HoldStats
     from ccf_ros.settings import build
-    from ccf_ros.sync import HoldStats
 
     t, gyr, acc, mag, _ = _flip()
     full = math.radians(2000.0)

@@ -21,14 +21,15 @@ from rcl_interfaces.msg import ParameterType  # noqa: E402
 from rclpy.parameter import Parameter, parameter_value_to_python  # noqa: E402
 from rclpy.parameter_client import AsyncParameterClient  # noqa: E402
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, ReliabilityPolicy  # noqa: E402
+from rosutil import stop_node  # noqa: E402
 from std_msgs.msg import Bool  # noqa: E402
 from test_node import IMU, MAG, RELIABLE, Harness, _imu_only, _ref_xyzw, _replay_reference, _xyzw  # noqa: E402
 
-import ccf_ros.node  # noqa: E402
-from ccf_ros.compat import PROFILES, defaults_for, tf_transform  # noqa: E402
+import ccf_ros.node.node  # noqa: E402
 from ccf_ros.core.quaternion import from_xyzw, rpy_of  # noqa: E402
 from ccf_ros.node import TF_UNAVAILABLE, CcfNode, tf_message_type  # noqa: E402
-from ccf_ros.node_support import raw_rpy  # noqa: E402
+from ccf_ros.node.compat import PROFILES, defaults_for, tf_transform  # noqa: E402
+from ccf_ros.node.debug import raw_rpy  # noqa: E402
 from ccf_ros.offline.params_file import load_params_file  # noqa: E402
 
 DATA = Path(__file__).resolve().parent / 'data'
@@ -327,7 +328,7 @@ def test_gain_notices_logged_once_at_start_up_and_when_set_later(context, logs):
 # --- TF ---------------------------------------------------------------------------------------------------------
 
 def test_publish_tf_without_tf2_msgs_warns_once_and_the_node_runs_on(context, inputs, logs, monkeypatch):
-    monkeypatch.setattr(ccf_ros.node, 'tf_message_type', lambda: None)
+    monkeypatch.setattr(ccf_ros.node.node, 'tf_message_type', lambda: None)
     node = make(context, 'imu_filter_madgwick_node')  # publish_tf defaults to true there
     h = DropinHarness(context, node)
     try:
@@ -365,7 +366,7 @@ def test_transform_is_the_output_orientation_stamped_and_framed(context, inputs,
             sent.append(msg)
 
     real = CcfNode.create_publisher
-    monkeypatch.setattr(ccf_ros.node, 'tf_message_type', lambda: _TFMessage)
+    monkeypatch.setattr(ccf_ros.node.node, 'tf_message_type', lambda: _TFMessage)
     monkeypatch.setattr(CcfNode, 'create_publisher',
                         lambda self, t, topic, *a, **k: Pub() if topic == '/tf' else real(self, t, topic, *a, **k))
     node = make(context, 'imu_filter_madgwick_node', yaw_offset=0.25)
@@ -534,9 +535,7 @@ def test_imu_filter_yaml_on_the_installed_madgwick_executable(context, inputs):
         assert len(h.out) == 60
         np.testing.assert_array_equal(_xyzw(h.out), _ref_xyzw(_replay_reference(msgs)))
     finally:
-        out = h.stop(proc)
-    assert proc.returncode == 0, out
-    assert 'Traceback' not in out
+        out = stop_node(proc, h)
     assert '[imu_filter]' in out
     if tf_message_type() is None:
         assert out.count(TF_UNAVAILABLE) == 1, out

@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from ccf_ros.offline import fastcdr
+from ccf_ros.messages import cdr as fastcdr
 from ccf_ros.offline.bagio import typestore
 
 
@@ -53,7 +53,7 @@ def test_an_answer_filled_into_a_message_serializes_to_the_patched_bytes(vectors
     """messages.fill_imu (the deserializing path) and patch_imu/patch_imu_vectors (the fast path) write the same
     answer: rosbags serializes the filled message to exactly the patched bytes; stamps read alike."""
     from ccf_ros.engine import Output
-    from ccf_ros.offline.messages import fill_imu, seconds, stamp_s
+    from ccf_ros.messages.convert import fill_imu, seconds, stamp_s
 
     hdr, imu, raw = make_imu(nanosec=999999999)
     out = Output((0.1, 0.2, 0.3, 0.9), tuple(float(i) for i in range(9)), (1e-3, 2e-3, 3e-3), 0,

@@ -311,8 +311,8 @@ def test_replay_with_mount_rotation_and_output_frame_id(sim_bags):
 
 
 def test_reframe_imu_matches_a_serialized_message_and_turns_the_covariances():
+    from ccf_ros.messages.cdr import frame_id, read_imu, reframe_imu
     from ccf_ros.offline.bagio import typestore
-    from ccf_ros.offline.fastcdr import frame_id, read_imu, reframe_imu
 
     st = typestore()
     T = st.types
@@ -359,7 +359,7 @@ def test_a_second_replay_starts_from_the_bias_file(sim_bags, tmp_path):
 
 
 def test_every_executable_and_replay_know_the_new_parameters():
-    from ccf_ros.compat import PROFILES, defaults_for
+    from ccf_ros.node.compat import PROFILES, defaults_for
     from ccf_ros.settings import config_yaml
 
     names = {'mount_rotation', 'mag_rotation', 'output_frame_id', 'gyro_offset_rad_s', 'bias_file',
@@ -371,8 +371,8 @@ def test_every_executable_and_replay_know_the_new_parameters():
 
 def test_reframe_msg_turns_a_deserialized_message():
     """The message path of replay (ROS 1, big-endian bags): rosbags' numpy covariances, header."""
+    from ccf_ros.messages.convert import reframe_msg
     from ccf_ros.offline.bagio import typestore
-    from ccf_ros.offline.messages import reframe_msg
 
     T = typestore().types
     V, Q = T['geometry_msgs/msg/Vector3'], T['geometry_msgs/msg/Quaternion']

@@ -159,8 +159,9 @@ def test_broad_30_is_not_worse_and_33_is_better():
 def test_the_node_diagnostics_show_the_hard_iron_status(hand):
     import time
 
-    from ccf_ros.node_support import InputStats, diagnostics
-    from ccf_ros.sync import HoldStats
+    from ccf_ros.node.diagnostics import diagnostics
+    from ccf_ros.node.stats import InputStats
+    from ccf_ros.node.sync import HoldStats
 
     hold = HoldStats(0, 0, 0.0, 0.0, False)
     off = diagnostics(time.monotonic(), InputStats(), ImuEngine(*build({})), hold, use_mag=True, mag_timeout_s=0.5)

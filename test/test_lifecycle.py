@@ -16,6 +16,7 @@ rclpy = pytest.importorskip('rclpy')
 from lifecycle_msgs.msg import State, Transition  # noqa: E402
 from lifecycle_msgs.srv import ChangeState, GetState  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
+from rosutil import stop_node  # noqa: E402
 from test_node import Harness, _ref_xyzw, _replay_reference, _xyzw  # noqa: E402
 
 from ccf_ros.node import CcfLifecycleNode  # noqa: E402
@@ -169,9 +170,7 @@ def test_installed_lifecycle_node_exits_cleanly_on_sigint(context, inputs, start
             assert len(h.out) == 200
         assert m.state() == start
     finally:
-        out = h.stop(proc)
-    assert proc.returncode == 0, out
-    assert 'Traceback' not in out
+        stop_node(proc, h)
 
 
 def test_launch_file_starts_the_lifecycle_node_on_lifecycle_true():

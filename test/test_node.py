@@ -22,13 +22,13 @@ from geometry_msgs.msg import Vector3Stamped  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
-from rosutil import big_endian_cdr, read_inputs  # noqa: E402
+from rosutil import big_endian_cdr, read_inputs, stop_node  # noqa: E402
 from sensor_msgs.msg import Imu, MagneticField  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
 from ccf_ros.engine import ImuEngine  # noqa: E402
 from ccf_ros.node import CcfNode  # noqa: E402
-from ccf_ros.node_support import OK  # noqa: E402
+from ccf_ros.node.diagnostics import OK  # noqa: E402
 from ccf_ros.settings import all_defaults, build  # noqa: E402
 
 RELIABLE = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE)
@@ -125,16 +125,6 @@ class Harness:
         if self.node is not None:
             self.node.destroy_node()
 
-    def stop(self, proc, sig=signal.SIGINT):
-        """Stop the node subprocess ``proc`` with ``sig`` (waiting up to 20 s), then close this harness; the
-        subprocess' output (stdout with stderr)."""
-        proc.send_signal(sig)
-        try:
-            out, _ = proc.communicate(timeout=20)
-        finally:
-            self.close()
-        return out
-
 
 def _replay_reference(messages, settings=None, engine=None):
     """What `ccf replay` computes for the same messages in the same order: the shared engine's outputs."""
@@ -180,10 +170,10 @@ def _imu_only(messages):
 
 
 def test_node_publishes_exactly_what_replay_computes(context, inputs, monkeypatch):
-    import ccf_ros.node
+    import ccf_ros.node.node
 
     # Little-endian input takes the byte path: nothing is deserialized.
-    monkeypatch.setattr(ccf_ros.node, 'deserialize_message', None)
+    monkeypatch.setattr(ccf_ros.node.node, 'deserialize_message', None)
     node = reliable_node(context, gyro_bias_rate_hz=0.0)
     h = Harness(context, node)
     try:
@@ -232,11 +222,11 @@ def test_corrected_rate_gravity_free_acceleration_and_yaw_offset_are_the_engines
 
 
 def test_big_endian_input_is_deserialized_and_answered_the_same(context, inputs, monkeypatch):
-    import ccf_ros.node
+    import ccf_ros.node.node
 
     deserialized = []
-    plain = ccf_ros.node.deserialize_message
-    monkeypatch.setattr(ccf_ros.node, 'deserialize_message', lambda data, t: deserialized.append(t) or plain(data, t))
+    plain = ccf_ros.node.node.deserialize_message
+    monkeypatch.setattr(ccf_ros.node.node, 'deserialize_message', lambda data, t: deserialized.append(t) or plain(data, t))
     node = reliable_node(context, gyro_bias_rate_hz=0.0)
     h = Harness(context, node)
     try:
@@ -311,7 +301,7 @@ def test_magnetometer_at_a_quarter_rate_on_the_same_clock_is_never_waited_for(co
         assert len(h.out) == len(ref) == 1200
         np.testing.assert_array_equal(_xyzw(h.out), _ref_xyzw(ref))
         st = node.sync.stats()
-        # At most the samples of the first magnetometer period, at start-up (see ccf_ros.sync); the old rule held
+        # At most the samples of the first magnetometer period, at start-up (see ccf_ros.node.sync); the old rule held
         # three quarters of them.
         assert st.n_held <= 3 and not st.lockstep
         assert node.diagnostics().values['samples held for magnetometer'] == str(st.n_held)
@@ -557,9 +547,7 @@ def test_installed_node_in_a_namespace_answers_and_exits_cleanly(context, inputs
         assert len(h.out) == 600
         np.testing.assert_array_equal(_xyzw(h.out), _ref_xyzw(_replay_reference(inputs[:1200], {'use_mag': False})))
     finally:
-        out = h.stop(proc, sig)
-    assert proc.returncode == 0, out
-    assert 'Traceback' not in out
+        stop_node(proc, h, sig)
 
 
 
@@ -604,7 +592,7 @@ def test_node_rejects_invalid_startup_parameters():
 def test_an_error_while_running_is_a_traceback_not_a_startup_parameter_error(monkeypatch):
     """Only what the start-up raises is the user's parameters (one line, exit 2); a ValueError while spinning is a
     bug and propagates with its traceback."""
-    import ccf_ros.node as node_module
+    import ccf_ros.node.entry as node_module
 
     def spin(_node):
         raise ValueError('injected error while running')
@@ -621,7 +609,7 @@ def _engine_over_bag(bag, late=()):
     moved to just after the ``n``-th IMU message, where the node's engine got it.
     """
     from ccf_ros.core.quaternion import from_xyzw
-    from ccf_ros.offline.fastcdr import read_imu, read_mag
+    from ccf_ros.messages.cdr import read_imu, read_mag
     from ccf_ros.offline.play import load_messages
 
     _, messages = load_messages(bag, [IMU, MAG])
@@ -654,7 +642,7 @@ def _engine_over_bag(bag, late=()):
 
 def _late_mags(log):
     """``(stamp, n)`` of each magnetometer sample the node logged as late: its engine got it after its ``n``-th IMU
-    sample (ccf_ros.node: CcfNode._mag_late)."""
+    sample (ccf_ros.node.node: CcfNode._mag_late)."""
     import re
 
     found = re.findall(r'late magnetometer sample t=(\S+) after IMU sample (\d+)', Path(log).read_text())
@@ -696,7 +684,7 @@ def test_live_node_matches_replay_on_fast_rotation(tmp_path):
 def test_late_magnetometer_samples_are_placed_where_the_node_reports_them(faulty_sim, tmp_path):
     """The reference of the live tests is exact, not a tolerance: moving one magnetometer sample after its IMU sample
     changes the answers, and _engine_over_bag reproduces that move from a node's report."""
-    from ccf_ros.offline.fastcdr import read_mag
+    from ccf_ros.messages.cdr import read_mag
     from ccf_ros.offline.play import load_messages
 
     path, _ = faulty_sim

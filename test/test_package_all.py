@@ -20,7 +20,7 @@ def _all(package: str) -> list[str]:
     raise AssertionError(f'ccf_ros/{package}/__init__.py has no __all__')
 
 
-@pytest.mark.parametrize('package', ['offline', 'study'])
+@pytest.mark.parametrize('package', ['messages', 'offline', 'study'])
 def test_module_packages_list_every_module_in_all(package):
     # Read, not imported: `import *` of these would load rosbags, matplotlib and scipy.
     names = _all(package)

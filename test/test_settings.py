@@ -10,10 +10,10 @@ from pathlib import Path
 import pytest
 
 from ccf_ros import settings
-from ccf_ros.compat import PROFILES, bias_estimation_off
 from ccf_ros.core.fields import parse_bool, parse_numbers
 from ccf_ros.core.registry import make_filter
 from ccf_ros.errors import ParameterError
+from ccf_ros.node.compat import PROFILES, bias_estimation_off
 from ccf_ros.settings import build, coerce, schema
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -147,7 +147,7 @@ def test_above_means_the_lower_bound_itself_is_refused():
 
 
 def test_old_names_stay_importable():
-    from ccf_ros.node_support import PER_AXIS, coerce_parameter, parameter_range
+    from ccf_ros.node.parameters import PER_AXIS, coerce_parameter, parameter_range
 
     assert settings.AdapterSettings is settings.EngineSettings
     assert settings.adapter_settings({'mag_bias_y': '2e-5'}).mag_bias == (0.0, 2e-5, 0.0)

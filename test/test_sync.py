@@ -1,5 +1,5 @@
 """The node's plain-Python parts without ROS, on deterministic stamps and clocks: the IMU/magnetometer sync
-(ccf_ros.sync), input statistics and diagnostics (ccf_ros.node_support)."""
+(ccf_ros.node.sync), input statistics and diagnostics (ccf_ros.node.stats, ccf_ros.node.diagnostics)."""
 
 from __future__ import annotations
 
@@ -10,8 +10,9 @@ import pytest
 
 from ccf_ros.core import make_filter
 from ccf_ros.engine import ImuEngine
-from ccf_ros.node_support import ERROR, LOSS_WARN_S, OK, WARN, InputStats, diagnostics
-from ccf_ros.sync import HOLD_S, HoldStats, ImuMagSync
+from ccf_ros.node.diagnostics import ERROR, LOSS_WARN_S, OK, WARN, diagnostics
+from ccf_ros.node.stats import InputStats
+from ccf_ros.node.sync import HOLD_S, HoldStats, ImuMagSync
 
 P = 0.001  # IMU period, s (1 kHz)
 T0 = 1_700_000_000.0
@@ -368,7 +369,7 @@ def test_invalid_arguments():
         ImuMagSync(lockstep_after=0)
 
 
-# --- node_support ------------------------------------------------------------------------------------------------
+# --- stats, diagnostics --------------------------------------------------------------------------------------------
 
 
 def test_input_stats_rate_and_messages_lost_from_stamp_holes():

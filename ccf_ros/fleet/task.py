@@ -208,9 +208,9 @@ def _health_bulk(reader: Any, bag: str, engine: Any, health: HealthAccumulator, 
     message."""
     import numpy as np
 
+    from ..messages.convert import stamp_s
     from ..offline.bagio import deserialize, unreadable
     from ..offline.mcap import McapError, fast_batches
-    from ..offline.messages import stamp_s
     from ..offline.replay import decode_chunk
 
     if not reader.is2:
@@ -267,9 +267,9 @@ def _health_bulk(reader: Any, bag: str, engine: Any, health: HealthAccumulator, 
 def _health_only(bag: str, engine: Any, opts: FleetOptions, health: HealthAccumulator | None = None) -> list[str]:
     """The engine (and ``health``) over the bag without an output bag; returns warnings."""
     from ..errors import BagError
+    from ..messages.cdr import LITTLE_ENDIAN_CDR, read_imu, read_mag
+    from ..messages.convert import stamp_s
     from ..offline.bagio import connections_for, deserialize, detect_topics, in_bag_order, open_bag, read_messages
-    from ..offline.fastcdr import LITTLE_ENDIAN_CDR, read_imu, read_mag
-    from ..offline.messages import stamp_s
     from ..offline.replay import IMU, MAGNETIC_FIELD
 
     warnings: list[str] = []

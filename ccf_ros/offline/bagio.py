@@ -21,7 +21,7 @@ import numpy as np
 from ..core.pairing import MagPairer
 from ..core.quaternion import from_xyzw
 from ..errors import BagError
-from .messages import stamp_s
+from ..messages.convert import stamp_s
 
 if TYPE_CHECKING:  # rosbags is imported when a bag is opened, not with this module
     from rosbags.highlevel import AnyReader

@@ -17,7 +17,7 @@ import numpy as np
 
 from ..core.quaternion import from_xyzw
 from ..errors import CcfError
-from .messages import seconds
+from ..messages.convert import seconds
 from .play import load_messages, play
 
 

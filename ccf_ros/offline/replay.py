@@ -4,9 +4,9 @@
 angular velocity and linear acceleration the engine gives (``bias_corrected_rate``, ``remove_gravity_vector``).
 
 How it runs: :func:`replay` opens the input bag and a staged output bag; :class:`_Replayer` reads the messages in
-bag order and sends each IMU or magnetometer message down one of two paths with the same steps (:class:`_Path`):
-:class:`_FastCdrPath` reads and patches little-endian CDR bytes (rosbag2), :class:`_MessagePath` deserializes
-anything else (ROS 1, big-endian CDR) with rosbags. Messages are handled in blocks of :data:`BLOCK_SIZE`: the
+bag order and sends each IMU or magnetometer message down one of two paths with the same steps (:class:`_Path`, on
+the paths the node takes too, :mod:`ccf_ros.messages.paths`): the fast path reads and patches little-endian CDR bytes
+(rosbag2), the message path deserializes anything else (ROS 1, big-endian CDR) with rosbags. Messages are handled in blocks of :data:`BLOCK_SIZE`: the
 filter runs over a block's samples in a tight loop, then the block's answers and copies are written, in order.
 """
 
@@ -19,11 +19,15 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple, Protocol, TypeVar
+from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
 
 import numpy as np
 
 from ..engine import ImuEngine, Output, Vec3
+from ..messages.cdr import ANGULAR_VELOCITY, LINEAR_ACCELERATION, LITTLE_ENDIAN_CDR, _gather, stamped_columns
+from ..messages.convert import stamp_s
+from ..messages.paths import FastCdrPath, MessagePath
+from ..messages.paths import Path as MessageWay
 from .bagio import (
     BagError,
     BagWriter,
@@ -40,21 +44,6 @@ from .bagio import (
     typestore,
     unreadable,
 )
-from .fastcdr import (
-    ANGULAR_VELOCITY,
-    LINEAR_ACCELERATION,
-    LITTLE_ENDIAN_CDR,
-    _gather,
-    frame_id,
-    patch_imu,
-    patch_imu_vectors,
-    read_imu,
-    read_mag,
-    reframe_imu,
-    stamped_columns,
-    vector3_stamped,
-)
-from .messages import fill_imu, reframe_msg, stamp_s
 
 if TYPE_CHECKING:  # rosbags is imported when a bag is opened, not with this module
     from rosbags.highlevel import AnyReader
@@ -229,127 +218,99 @@ class _Outputs:
         return cls(writer, imu, bias, copies)
 
 
-Answer = TypeVar('Answer')  # what a path needs to serialize the engine's answer to an IMU sample
 #: A serialized answer: the Imu and the Vector3Stamped of the gyro bias, CDR.
 Serialized = tuple[bytes | memoryview, bytes | memoryview]
 
 
-class _Path(Protocol[Answer]):
-    """One way through replay for an IMU or magnetometer message, from its bytes as read from the bag to the
-    bytes of the answer: the steps :class:`_Replayer` calls. A message that cannot be read is a :class:`BagError`.
+class _Path:
+    """One way through replay for an IMU or magnetometer message, from its bytes as read from the bag to the bytes
+    of the answer: one of the shared paths (:mod:`ccf_ros.messages.paths`: :class:`FastCdrPath` for little-endian
+    CDR, :class:`MessagePath` for anything else, deserialized by rosbags), the engine, and the bag's rules (a message
+    that cannot be read is a :class:`BagError`). Answers are (source, orientation offset, the engine's output).
+
+    Args:
+        serialize: (answer Imu, msgtype) -> CDR bytes (the message path's; the fast path's answers are bytes).
     """
 
-    def on_imu(self, raw: bytes) -> Answer | None:
-        """Feed an IMU sample to the engine; None: the engine gives no answer (nothing is written)."""
-        ...
-
-    def on_mag(self, raw: bytes) -> None:
-        """Feed a magnetometer sample to the engine."""
-        ...
-
-    def serialize(self, answer: Answer) -> Serialized:
-        """The messages that answer an IMU sample."""
-        ...
-
-
-class _FastCdrPath:
-    """Little-endian CDR (rosbag2): the few fields needed are read from the bytes and the answer is patched into a
-    copy of them; no deserialisation. Answers are the input's bytes, the engine's output and the offset of the
-    Imu's ``orientation``."""
-
-    def __init__(self, engine: ImuEngine, bag: str | Path) -> None:
+    def __init__(self, way: MessageWay[Any], engine: ImuEngine, bag: str | Path,
+                 serialize: Any = None) -> None:
+        self.way = way
         self._engine = engine
+        self._read_imu, self._read_mag = way.read_imu, way.read_mag
+        self._answer, self._stamped = way.answer, way.stamped
         self._on_imu = engine.on_imu
         self._on_mag = engine.on_mag
         self._bag = bag
-        out_frame = engine.settings.output_frame_id
-        self._frame = out_frame.encode() if out_frame else None
-        self._rot = engine.output_rotation
-        self._reframe = self._frame is not None or self._rot is not None
+        self._serialize = serialize
+        way.set_output(engine.settings.output_frame_id, engine.output_rotation)
         if engine.wants_sensor_frame:
             self.on_imu = self._first_imu  # type: ignore[method-assign]  # once: then the plain method
 
-    def _first_imu(self, raw: bytes) -> tuple[bytes, Output, int] | None:
+    def _first_imu(self, raw: bytes) -> tuple[Any, int, Output] | None:
         """The first IMU sample: tell the engine the sensor's frame_id (its bias_file applies from here)."""
         del self.on_imu
         if self._engine.wants_sensor_frame:
             try:
-                self._engine.set_sensor_frame(frame_id(raw))
+                self._engine.set_sensor_frame(self.way.frame_id(self._read_imu(raw)[2]))
             except (struct.error, IndexError) as err:
                 raise unreadable(self._bag, err) from err
         return self.on_imu(raw)
 
-    def on_imu(self, raw: bytes) -> tuple[bytes, Output, int] | None:
+    def on_imu(self, raw: bytes) -> tuple[Any, int, Output] | None:
+        """Feed an IMU sample to the engine; None: the engine gives no answer (nothing is written)."""
         try:
-            t, off, gyr, acc = read_imu(raw)
+            t, _, src, off, gyr, acc = self._read_imu(raw)
         except struct.error as err:  # CDR bytes shorter than an Imu
             raise unreadable(self._bag, err) from err
         out = self._on_imu(t, gyr, acc)
-        return None if out is None else (raw, out, off)
+        return None if out is None else (src, off, out)
 
     def on_mag(self, raw: bytes) -> None:
+        """Feed a magnetometer sample to the engine."""
         try:
-            t, f = read_mag(raw)
+            t, f = self._read_mag(raw)
         except struct.error as err:
             raise unreadable(self._bag, err) from err
         self._on_mag(t, f)
 
-    def serialize(self, answer: tuple[bytes, Output, int]) -> Serialized:
-        raw, out, off = answer
-        if self._reframe:
-            # Output frame: a new frame_id moves the body; the input's rate and acceleration covariances turn.
-            buf, off = reframe_imu(raw, off, self._frame, self._rot)
-        else:
-            buf = bytearray(raw)
-        patch_imu(buf, off, out.orientation_xyzw, out.covariance)
-        if out.angular_velocity is not None or out.linear_acceleration is not None:
-            patch_imu_vectors(buf, off, out.angular_velocity, out.linear_acceleration)
-        return memoryview(buf), vector3_stamped(buf, off, out.bias)
+    def serialize(self, answer: tuple[Any, int, Output]) -> Serialized:
+        """The messages that answer an IMU sample."""
+        src, off, out = answer
+        imu, src, off = self._answer(src, off, out)
+        bias = self._stamped(src, off, out.bias)
+        serialize = self._serialize
+        if serialize is None:
+            return imu, bias
+        return serialize(imu, IMU), serialize(bias, VECTOR3_STAMPED)
 
 
-class _MessagePath:
+def _fast_path(engine: ImuEngine, bag: str | Path) -> _Path:
+    """Little-endian CDR (rosbag2): no deserialisation; answers are views of the patched copies."""
+    return _Path(FastCdrPath(send=memoryview), engine, bag)
+
+
+def _message_path(engine: ImuEngine, reader: AnyReader, store: Typestore, bag: str | Path) -> _Path:
     """Anything else (ROS 1, big-endian CDR): rosbags deserializes the message; the answer is filled into it and it
-    is serialized again (same header and fields). Answers are the message and the engine's output."""
+    is serialized again (same header and fields)."""
+    # rosbags' message classes are generated: their fields are not known statically.
+    types: dict[str, Any] = store.types
+    # Serialized right away, so one covariance buffer and one bias message serve every sample.
+    covariance = np.zeros(9)
+    vector = types['geometry_msgs/msg/Vector3'](x=0.0, y=0.0, z=0.0)
+    bias = types[VECTOR3_STAMPED](header=None, vector=vector)
 
-    def __init__(self, engine: ImuEngine, reader: AnyReader, store: Typestore, bag: str | Path) -> None:
-        self._engine = engine
-        self._frame = engine.settings.output_frame_id
-        self._rot = engine.output_rotation
-        self._on_imu = engine.on_imu
-        self._on_mag = engine.on_mag
-        self._reader = reader
-        self._serialize = store.serialize_cdr
-        self._bag = bag
-        # rosbags' message classes are generated: their fields are not known statically.
-        types: dict[str, Any] = store.types
-        # Serialized right away, so one covariance buffer and one bias message serve every sample.
-        self._covariance = np.zeros(9)
-        self._bias_vector = types['geometry_msgs/msg/Vector3'](x=0.0, y=0.0, z=0.0)
-        self._bias = types[VECTOR3_STAMPED](header=None, vector=self._bias_vector)
+    def fill_covariance(values: tuple[float, ...]) -> Any:
+        covariance[:] = values
+        return covariance
 
-    def on_imu(self, raw: bytes) -> tuple[Any, Output] | None:
-        msg = deserialize(self._reader, raw, IMU, self._bag)
-        if self._engine.wants_sensor_frame:
-            self._engine.set_sensor_frame(msg.header.frame_id)
-        g, a = msg.angular_velocity, msg.linear_acceleration
-        out = self._on_imu(stamp_s(msg.header), (g.x, g.y, g.z), (a.x, a.y, a.z))
-        return None if out is None else (msg, out)
+    def stamped(header: Any, v: Vec3) -> Any:
+        vector.x, vector.y, vector.z = v
+        bias.header = header
+        return bias
 
-    def on_mag(self, raw: bytes) -> None:
-        msg = deserialize(self._reader, raw, MAGNETIC_FIELD, self._bag)
-        f = msg.magnetic_field
-        self._on_mag(stamp_s(msg.header), (f.x, f.y, f.z))
-
-    def serialize(self, answer: tuple[Any, Output]) -> Serialized:
-        msg, out = answer
-        self._covariance[:] = out.covariance
-        fill_imu(msg, out, self._covariance)
-        if self._frame or self._rot is not None:
-            reframe_msg(msg, self._frame, self._rot)
-        b = self._bias_vector
-        b.x, b.y, b.z = out.bias
-        self._bias.header = msg.header
-        return self._serialize(msg, IMU), self._serialize(self._bias, VECTOR3_STAMPED)
+    way = MessagePath(lambda raw: deserialize(reader, raw, IMU, bag),
+                      lambda raw: deserialize(reader, raw, MAGNETIC_FIELD, bag), stamped, fill_covariance)
+    return _Path(way, engine, bag, store.serialize_cdr)
 
 
 class _HintPath:
@@ -457,8 +418,8 @@ class _Replayer:
             raise BagError(f'{bag}: no messages on {topics.imu}')
         self._store = typestore()
         self._outputs = _Outputs.add(writer, reader, self._store, topics, copy_input)
-        self._fast = _FastCdrPath(engine, bag)
-        self._message = _MessagePath(engine, reader, self._store, bag)
+        self._fast = _fast_path(engine, bag)
+        self._message = _message_path(engine, reader, self._store, bag)
 
     def run(self, progress: bool | None) -> int:
         """Replay every message; returns the number of IMU messages written. ``progress`` None: a bar on a tty."""
@@ -476,8 +437,8 @@ class _Replayer:
             bulk = self._bulk()
             if bulk is None and self._health is not None:
                 self._health.observe(self._engine)  # (before the paths take the engine's on_imu)
-                self._fast = _FastCdrPath(self._engine, self._bag)
-                self._message = _MessagePath(self._engine, self._reader, self._store, self._bag)
+                self._fast = _fast_path(self._engine, self._bag)
+                self._message = _message_path(self._engine, self._reader, self._store, self._bag)
             if bulk is not None:
                 for n_o, n_imu in bulk:
                     n_out += n_o
@@ -496,7 +457,7 @@ class _Replayer:
         the output's records framed with numpy from the input's bytes (:func:`record_writer`); nothing to copy, no
         motion hint, no output frame, no state file waiting for the sensor's frame_id. Yields (answers, IMU samples)
         per chunk; None where it does not apply."""
-        if (self._outputs.copies or not self._reader.is2 or self._fast._reframe or self._hint.msgtype
+        if (self._outputs.copies or not self._reader.is2 or self._fast.way.reframes or self._hint.msgtype
                 or self._engine.wants_sensor_frame):
             return None
         from .mcap import McapError, fast_batches, record_writer
@@ -593,6 +554,8 @@ class _Replayer:
             mags: list[Any] = []
             rejected: list[bool] = []
             add_mag, add_rej = mags.append, rejected.append
+            # Hot path, the same shape as fleet.task's health-only loop (which keeps no answers): written out in
+            # both, as a shared helper would cost a call per sample.
             for is_imu, t, a, b in zip(imu.tolist(), t_all.tolist(), vec1, vec2, strict=True):
                 if is_imu:
                     add(on_imu(t, a, b))
@@ -627,7 +590,7 @@ class _Replayer:
             sizes: list[int] = []
             for s, e, off, t, out in zip(start.tolist(), end.tolist(), body.tolist(), t_ns.tolist(), outs,
                                          strict=True):
-                imu, bias = self._fast.serialize((u8[s:e].tobytes(), out, off))
+                imu, bias = self._fast.serialize((u8[s:e].tobytes(), off, out))
                 for cid, data in ((imu_id, imu), (bias_id, bias)):
                     parts += (_RECORD_HEAD.pack(0x05, 22 + len(data), cid, 0, t, t), data)
                     sizes.append(31 + len(data))

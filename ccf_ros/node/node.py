@@ -8,17 +8,19 @@ Subscribes ``imu/data_raw`` (sensor_msgs/Imu) and ``imu/mag`` (sensor_msgs/Magne
 ``/diagnostics``. Service ``~/reset`` (std_srvs/Trigger).
 
 One class, three executables: ``ccf_node``, ``imu_filter_madgwick_node`` and ``complementary_filter_node`` differ
-only by their :class:`~ccf_ros.compat.NodeProfile` (default node name, topics, parameter defaults and read-only
+only by their :class:`~ccf_ros.node.compat.NodeProfile` (default node name, topics, parameter defaults and read-only
 flags, QoS overrides). Every executable declares every parameter (:func:`ccf_ros.settings.all_defaults`).
 
-This module keeps only what needs ROS: callbacks, message conversion, publishers and parameters. The IMU/magnetometer
-delivery order is :mod:`ccf_ros.sync`; parameter values, input statistics and diagnostics rules are
-:mod:`ccf_ros.node_support`; the profiles are :mod:`ccf_ros.compat`.
+This module keeps only what needs ROS: callbacks, publishers and parameters. The IMU/magnetometer delivery order
+is :mod:`ccf_ros.node.sync`; parameter values, input statistics and diagnostics rules are :mod:`.parameters`,
+:mod:`.stats` and :mod:`.diagnostics`; the profiles are :mod:`ccf_ros.node.compat`; the managed node and the
+executables are :mod:`.lifecycle` and :mod:`.entry`.
 
-Messages are taken serialized (``raw=True``): stamp, rate and specific force are read from the little-endian CDR
-bytes, the output is the input's bytes with orientation and covariance patched in, and the gyro-bias message is the
-input's header bytes plus a vector (:mod:`ccf_ros.offline.fastcdr`). Anything else (big-endian CDR) is deserialized
-and answered as a message. Either way the values are exactly the engine's, as in ``ccf replay``.
+Messages are taken serialized (``raw=True``) and go down one of the two paths :mod:`ccf_ros.messages.paths` has, as
+in ``ccf replay``, picked by the bytes' encapsulation: little-endian CDR is read and patched as bytes (the output is
+the input's bytes with orientation and covariance patched in, the gyro-bias message the input's header bytes plus a
+vector); anything else (big-endian CDR) is deserialized and answered as a message. Either way the values are exactly
+the engine's.
 """
 
 from __future__ import annotations
@@ -29,7 +31,6 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseWithCovarianceStamped, TransformStamped, TwistStamped, Vector3Stamped
 from nav_msgs.msg import Odometry
@@ -41,9 +42,6 @@ from rcl_interfaces.msg import (
 )
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
-from rclpy.lifecycle import LifecycleNodeMixin, LifecycleState, TransitionCallbackReturn
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
@@ -55,13 +53,22 @@ from rclpy.qos import (
     ReliabilityPolicy,
     qos_profile_sensor_data,
 )
-from rclpy.qos_overriding_options import InvalidQosOverridesError, QoSOverridingOptions
+from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.serialization import deserialize_message
 from rclpy.subscription import Subscription
 from sensor_msgs.msg import Imu, MagneticField
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
+from ..core.base import ANSWERED_BELOW
+from ..core.pairing import MagPairer
+from ..core.quaternion import from_xyzw, rpy_of
+from ..engine import JUMP_BACK_RESET_S, ImuEngine, Output
+from ..frames import apply
+from ..messages.cdr import LINEAR_ACCELERATION, LITTLE_ENDIAN_CDR
+from ..messages.convert import stamp_s
+from ..messages.paths import FastCdrPath, MessagePath, Path
+from ..settings import build, coerce, schema
 from .compat import (
     MEANINGLESS_GAINS,
     PROFILES,
@@ -73,30 +80,9 @@ from .compat import (
     gain_notices,
     tf_transform,
 )
-from .core.base import ANSWERED_BELOW
-from .core.pairing import MagPairer
-from .core.quaternion import from_xyzw, rpy_of
-from .engine import JUMP_BACK_RESET_S, ImuEngine, Output
-from .frames import apply
-from .node_support import (
-    Diagnostics,
-    InputStats,
-    diagnostics,
-    imu_header,
-    raw_rpy,
-)
-from .offline.fastcdr import (
-    LINEAR_ACCELERATION,
-    LITTLE_ENDIAN_CDR,
-    patch_imu,
-    patch_imu_vectors,
-    read_imu,
-    read_mag,
-    reframe_imu,
-    vector3_stamped,
-)
-from .offline.messages import fill_imu, reframe_msg, stamp_s
-from .settings import build, coerce, schema
+from .debug import raw_rpy
+from .diagnostics import Diagnostics, diagnostics
+from .stats import InputStats
 from .sync import HOLD_S, ImuMagSync
 
 #: A magnetometer stamp up to this much after an IMU stamp pairs with it (MagPairer's default tolerance_s), s.
@@ -152,9 +138,9 @@ def tf_message_type() -> type[Any] | None:
 Vec3 = tuple[float, float, float]
 #: Bytes of an Imu from ``orientation`` on: 4 + 9 + 3 + 9 + 3 + 9 float64.
 _IMU_TAIL = LINEAR_ACCELERATION + 96
-#: A held IMU sample: stamp, serialized bytes (or the deserialized message, then offset -1), orientation offset,
-#: rate, specific force.
-Held = tuple[float, bytes | Imu, int, Vec3, Vec3]
+#: A held IMU sample: stamp, its path (:mod:`ccf_ros.messages.paths`), what the path answers from (the serialized
+#: bytes, or the deserialized message), orientation offset, rate, specific force.
+Held = tuple[float, Path[Any], Any, int, Vec3, Vec3]
 
 
 def _descriptor(name: str, read_only: bool) -> ParameterDescriptor:
@@ -187,7 +173,7 @@ class CcfNode(Node):
     """The orientation filter node; all filtering is done by the shared engine, exactly as ``ccf replay`` does.
 
     Args:
-        profile: the executable it presents itself as (a :data:`ccf_ros.compat.PROFILES` key or a profile).
+        profile: the executable it presents itself as (a :data:`ccf_ros.node.compat.PROFILES` key or a profile).
         node_name: node name instead of the profile's default (a ``__node:=`` remap still wins).
         **kwargs: passed to :class:`rclpy.node.Node` (``context``, ``parameter_overrides``, ...).
 
@@ -195,7 +181,7 @@ class CcfNode(Node):
         ParameterError: an invalid start-up parameter value (rclpy's ParameterException for a wrong type).
     """
 
-    #: Longest wait (s) of an IMU sample for its same-stamp magnetometer sample (see :mod:`ccf_ros.sync`).
+    #: Longest wait (s) of an IMU sample for its same-stamp magnetometer sample (see :mod:`ccf_ros.node.sync`).
     HOLD_S = HOLD_S
     #: Period of /diagnostics, s.
     DIAGNOSTICS_PERIOD_S = 1.0
@@ -251,6 +237,9 @@ class CcfNode(Node):
         self._save_timer: Any = None
         self._save_every: tuple[str | None, float] = (None, 0.0)
         self.sync: ImuMagSync[Held] = ImuMagSync(self.HOLD_S)
+        # The two paths a message can take, by its encapsulation; their output frame is set in _cache_settings.
+        self._fast = FastCdrPath(tail=_IMU_TAIL)
+        self._slow = MessagePath(_deserialize_imu, _deserialize_mag, _vector3_stamped, list)
         self.stats = InputStats()
         self._noticed: set[str] = set()
         self._last_bias_t = -math.inf
@@ -452,9 +441,10 @@ class CcfNode(Node):
         self._tf = bool(st['publish_tf']) and self.pub_tf is not None
         # Output frame: the engine turns the vectors; the messages get the new frame_id and turned covariances.
         out_frame = str(st['output_frame_id'])
-        self._out_frame = out_frame.encode() if out_frame else None
         self._rot = self.engine.output_rotation
-        self._reframe = self._out_frame is not None or self._rot is not None
+        # Set on the path objects, not replaced: held samples keep their path and take the new frame, as before.
+        self._fast.set_output(out_frame, self._rot)
+        self._slow.set_output(out_frame, self._rot)
         every = (str(st['bias_file']) or None, float(st['bias_save_interval_s']))
         if every != self._save_every:
             self._save_every = every
@@ -565,12 +555,7 @@ class CcfNode(Node):
 
     def _mag(self, data: bytes) -> None:
         try:
-            if data[:2] == LITTLE_ENDIAN_CDR:
-                t, field = read_mag(data)
-            else:
-                msg = deserialize_message(data, MagneticField)
-                f = msg.magnetic_field
-                t, field = stamp_s(msg.header), (f.x, f.y, f.z)
+            t, field = (self._fast if data[:2] == LITTLE_ENDIAN_CDR else self._slow).read_mag(data)
         except Exception as err:  # a truncated or foreign payload must not stop the node
             self.stats.n_unreadable += 1
             self._warn_throttled(f'unreadable magnetometer message ({len(data)} bytes) dropped: {err}')
@@ -595,22 +580,15 @@ class CcfNode(Node):
 
     def _imu(self, data: bytes) -> None:
         now = time.monotonic()
+        # Little-endian CDR: the bytes are read and patched; else (big-endian) deserialized, answered as a message.
+        path: Path[Any] = self._fast if data[:2] == LITTLE_ENDIAN_CDR else self._slow
         try:
-            if data[:2] == LITTLE_ENDIAN_CDR:
-                t, off, gyr, acc = read_imu(data)
-                if len(data) < off + _IMU_TAIL:
-                    raise ValueError('too short for an Imu')
-                item: Held = (t, data, off, gyr, acc)
-            else:
-                # Big-endian (or otherwise unusual) CDR: deserialize, answer with a message.
-                msg = deserialize_message(data, Imu)
-                g, a = msg.angular_velocity, msg.linear_acceleration
-                t = stamp_s(msg.header)
-                item = (t, msg, -1, (g.x, g.y, g.z), (a.x, a.y, a.z))
+            item: Held = path.read_imu(data)
         except Exception as err:  # a truncated or foreign payload must not stop the node
             self.stats.n_unreadable += 1
             self._warn_throttled(f'unreadable IMU message ({len(data)} bytes) dropped: {err}')
             return
+        t = item[0]
         self.stats.on_imu(t, now)
         sync = self.sync
         if sync.on_imu(t, item, now):
@@ -688,14 +666,14 @@ class CcfNode(Node):
         for item in items:
             self._answer(*item)
 
-    def _answer(self, t: float, data: bytes | Imu, off: int, gyr: Vec3, acc: Vec3) -> None:
+    def _answer(self, t: float, path: Path[Any], src: Any, off: int, gyr: Vec3, acc: Vec3) -> None:
         """Run one IMU sample through the engine and publish its answer (same bytes + orientation + covariance).
 
         Every sample is answered once an orientation exists: one that cannot advance the filter (repeated or
         backward stamp, non-finite rate) with the current orientation, counted in the diagnostics.
         """
         if self.engine.wants_sensor_frame:
-            self.engine.set_sensor_frame(imu_header(data)[2] if isinstance(data, bytes) else data.header.frame_id)
+            self.engine.set_sensor_frame(path.frame_id(src))
         out = self.engine.on_imu(t, gyr, acc)
         self._t_imu_done = t + MAG_TOLERANCE_S
         if out is None:
@@ -704,56 +682,22 @@ class CcfNode(Node):
         if out.status >= ANSWERED_BELOW:
             self._warn_throttled(f'sample at t={t:.6f} s could not advance the filter (answered with the current '
                                  f'orientation); so far: {self.engine.skipped_by_reason()}')
-        if isinstance(data, bytes):
-            if self._reframe:
-                # Into the output frame (new frame_id: the body moves); the bias, debug and TF take its header.
-                buf, off = reframe_imu(data, off, self._out_frame, self._rot)
-                data = bytes(buf)
-            else:
-                buf = bytearray(data)
-            patch_imu(buf, off, out.orientation_xyzw, out.covariance)
-            if out.angular_velocity is not None or out.linear_acceleration is not None:
-                patch_imu_vectors(buf, off, out.angular_velocity, out.linear_acceleration)
-            self.pub_imu.publish(bytes(buf))
-            if self._bias_due(self.engine.clock_s):
-                self.pub_bias.publish(vector3_stamped(data, off, out.bias))
-            if self._debug:
-                self._publish_debug(t, data, off, out, acc)
-            if self._tf:
-                sec, nanosec, frame_id = imu_header(data)
-                self._publish_tf(sec, nanosec, frame_id, out)
-        else:
-            self._answer_msg(t, data, out, acc)
-
-    def _answer_msg(self, t: float, msg: Imu, out: Output, acc: Vec3) -> None:
-        """The same answer built as messages (input that is not little-endian CDR)."""
-        fill_imu(msg, out, list(out.covariance))
-        if self._reframe:
-            reframe_msg(msg, self._out_frame.decode() if self._out_frame else '', self._rot)
-        self.pub_imu.publish(msg)
+        # In the output frame if one is set; the bias, debug and TF messages take the answer's header.
+        imu, src, off = path.answer(src, off, out)
+        self.pub_imu.publish(imu)
         if self._bias_due(self.engine.clock_s):
-            b = Vector3Stamped(header=msg.header)
-            b.vector.x, b.vector.y, b.vector.z = out.bias
-            self.pub_bias.publish(b)
+            self.pub_bias.publish(path.stamped(src, off, out.bias))
         if self._debug:
-            self._publish_debug(t, msg, -1, out, acc)
+            self._publish_debug(path, src, off, out, acc)
         if self._tf:
-            stamp = msg.header.stamp
-            self._publish_tf(stamp.sec, stamp.nanosec, msg.header.frame_id, out)
+            sec, nanosec, frame_id = path.header(src)
+            self._publish_tf(sec, nanosec, frame_id, out)
 
-    def _publish_debug(self, t: float, src: bytes | Imu, off: int, out: Output, acc: Vec3) -> None:
+    def _publish_debug(self, path: Path[Any], src: Any, off: int, out: Output, acc: Vec3) -> None:
         """imu/rpy/filtered (the output's roll, pitch, yaw), imu/rpy/raw (those of this sample's accelerometer and
-        magnetometer alone) and imu/steady_state (at rest), as the profile has them, with the input's header."""
-
-        def stamped(v: Vec3) -> bytes | Vector3Stamped:
-            if isinstance(src, bytes):
-                return vector3_stamped(src, off, v)
-            m = Vector3Stamped(header=src.header)
-            m.vector.x, m.vector.y, m.vector.z = v
-            return m
-
+        magnetometer alone) and imu/steady_state (at rest), as the profile has them, with the answer's header."""
         if self.pub_rpy is not None:
-            self.pub_rpy.publish(stamped(rpy_of(from_xyzw(*out.orientation_xyzw))))
+            self.pub_rpy.publish(path.stamped(src, off, rpy_of(from_xyzw(*out.orientation_xyzw))))
         if self.pub_rpy_raw is not None and self._use_mag:
             # The magnetometer sample the engine paired with this one (calibrated; asking the pairer again with the
             # header stamp could consume samples the engine did not, after a stamp it skipped as far ahead).
@@ -761,7 +705,7 @@ class CcfNode(Node):
                 acc = apply(self._rot, acc)  # the output frame, as the paired magnetometer sample is
             rpy = raw_rpy(acc, self.engine.paired_mag, self._world_frame)
             if rpy is not None:
-                self.pub_rpy_raw.publish(stamped(rpy))
+                self.pub_rpy_raw.publish(path.stamped(src, off, rpy))
         if self._steady and self.pub_steady is not None:
             self.pub_steady.publish(Bool(data=bool(self.engine.filter.flags.at_rest)))
 
@@ -825,7 +769,7 @@ class CcfNode(Node):
 
     # --- diagnostics --------------------------------------------------------------------------------------------
     def diagnostics(self, now: float | None = None) -> Diagnostics:
-        """Level, message and values of the node's status (rules in :func:`ccf_ros.node_support.diagnostics`) at
+        """Level, message and values of the node's status (rules in :func:`ccf_ros.node.diagnostics.diagnostics`) at
         ``now`` (s, time.monotonic; None: now)."""
         return diagnostics(time.monotonic() if now is None else now, self.stats, self.engine, self.sync.stats(),
                            use_mag=bool(self._settings['use_mag']),
@@ -849,120 +793,20 @@ class CcfNode(Node):
         self.pub_diag.publish(arr)
 
 
-class CcfLifecycleNode(LifecycleNodeMixin, CcfNode):
-    """``ccf_lifecycle_node``: :class:`CcfNode` as a managed (lifecycle) node, for bring-ups that activate nodes in
-    order (Nav2's lifecycle manager, ``ros2 lifecycle set``).
-
-    configure: parameters declared (once) and validated, the engine built (an invalid value: the transition fails
-    with the reason logged, the node stays unconfigured); activate: publishers, subscriptions, ``~/reset`` and the
-    timer made, messages flow; deactivate: held samples answered, all of them destroyed (parameters stay, the
-    estimate too); cleanup: the filter state dropped (the next configure starts a fresh estimate); shutdown, from
-    every state: whatever exists is destroyed.
-    """
-
-    def __init__(self, profile: NodeProfile | str = 'ccf_node', *, node_name: str | None = None,
-                 **kwargs: Any) -> None:
-        self._init_profile(profile)
-        self._configured = False
-        Node.__init__(self, node_name or self.profile.node_name, **kwargs)
-        LifecycleNodeMixin.__init__(self, enable_communication_interface=True)
-
-    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
-        try:
-            self._configure_ccf()
-        except (ValueError, ParameterException) as err:
-            self.get_logger().error(f'configure failed: {err}')
-            return TransitionCallbackReturn.FAILURE
-        self._configured = True
-        return TransitionCallbackReturn.SUCCESS
-
-    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._open_ccf()
-        return TransitionCallbackReturn.SUCCESS
-
-    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._close_ccf()
-        self.save_state()
-        return TransitionCallbackReturn.SUCCESS
-
-    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self.save_state()  # before the estimate is dropped
-        self.engine.reset()
-        self.sync.reset()
-        self._t_imu_done = -math.inf
-        self.stats = InputStats()
-        self._configured = False
-        return TransitionCallbackReturn.SUCCESS
-
-    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._close_ccf()
-        self._configured = False
-        return TransitionCallbackReturn.SUCCESS
-
-    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._close_ccf()
-        self._configured = False
-        return TransitionCallbackReturn.SUCCESS
-
-    def _validate_parameters(self, params: list[Parameter]) -> SetParametersResult:
-        if not self._configured:  # checked on configure
-            return SetParametersResult(successful=True)
-        return super()._validate_parameters(params)
-
-    def _apply_parameters(self, params: list[Parameter]) -> None:
-        if self._configured:
-            super()._apply_parameters(params)
-
-
 def _nothing() -> None:
     return None
 
 
-def _is_startup_error(err: BaseException) -> bool:
-    """An error in the user's start-up parameters (shown as one line), not a bug."""
-    if isinstance(err, (ValueError, ParameterException, InvalidQosOverridesError)):
-        return True
-    # rclpy's QoS override of an unknown policy value (e.g. reliability: sometimes)
-    return isinstance(err, RuntimeError) and str(err).startswith('Unexpected QoS override')
+# The message path's calls into rclpy, looked up when called (a test wraps deserialize_message).
+def _deserialize_imu(data: bytes) -> Any:
+    return deserialize_message(data, Imu)
 
 
-def main(args: list[str] | None = None, profile: str = 'ccf_node', lifecycle: bool = False) -> None:
-    """Entry point of ``ccf_node`` / ``ros2 run ccf_ros ccf_node`` (and, with ``profile``, of the drop-ins; with
-    ``lifecycle``, of ``ccf_lifecycle_node``)."""
-    node: CcfNode | None = None
-    try:
-        rclpy.init(args=args)
-        node = CcfLifecycleNode(profile) if lifecycle else CcfNode(profile)
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception as err:
-        # Only what the start-up raised is the user's parameters; an error while running is a bug: its traceback.
-        if node is not None or not _is_startup_error(err):
-            raise
-        # Invalid parameters at start-up: one clear line, non-zero exit.
-        print(f'{profile}: error: {err}', flush=True)
-        raise SystemExit(2) from None
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+def _deserialize_mag(data: bytes) -> Any:
+    return deserialize_message(data, MagneticField)
 
 
-def lifecycle_main(args: list[str] | None = None) -> None:
-    """Entry point of ``ccf_lifecycle_node``: ccf_node as a managed node (starts unconfigured)."""
-    main(args, lifecycle=True)
-
-
-def imu_filter_madgwick_main(args: list[str] | None = None) -> None:
-    """Entry point of ``imu_filter_madgwick_node``: the ccf filter as imu_filter_madgwick presents itself."""
-    main(args, 'imu_filter_madgwick_node')
-
-
-def complementary_filter_main(args: list[str] | None = None) -> None:
-    """Entry point of ``complementary_filter_node``: the ccf filter as imu_complementary_filter presents itself."""
-    main(args, 'complementary_filter_node')
-
-
-if __name__ == '__main__':
-    main()
+def _vector3_stamped(header: Any, v: Vec3) -> Vector3Stamped:
+    m = Vector3Stamped(header=header)
+    m.vector.x, m.vector.y, m.vector.z = v
+    return m
