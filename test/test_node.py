@@ -649,14 +649,17 @@ def _late_mags(log):
     return [(float(t), int(n)) for t, n in found]
 
 
-def _assert_as_replay_in_the_nodes_order(res, bag, log):
+def _assert_as_replay_in_the_nodes_order(res, bag, log, overtakes=0):
     """The live answers are replay's bit for bit, in the order the node's engine got the messages: bag order, but
     for the magnetometer samples it reports late (counted in its diagnostics, placed as its log says). On an idle
     machine there are none; under load a magnetometer sample can still come more than HOLD_S after its IMU sample
     (the node does not wait longer), and after the magnetometer's silence the IMU sample after its first sample can
-    overtake it (nothing waits while it is silent)."""
+    overtake it (nothing waits while it is silent). So a late sample is a hold timeout or one of ``overtakes`` (one
+    per silence): any other would be a pairing fault, which the reordered reference would hide."""
     late = _late_mags(log)
-    assert len(late) == int(res.diagnostics['magnetometer samples after their IMU sample']), res.diagnostics
+    d = res.diagnostics
+    assert len(late) == int(d['magnetometer samples after their IMU sample']), d
+    assert len(late) <= int(d['hold timeouts']) + overtakes, (late, d)
     t_ref, q_ref = _engine_over_bag(bag, late)
     assert len(res.t_s) == res.n_imu_sent == len(t_ref)
     np.testing.assert_array_equal(res.t_s, t_ref)
@@ -711,7 +714,7 @@ def test_live_node_survives_faults_and_answers_every_sample(faulty_sim, tmp_path
     np.testing.assert_allclose(np.linalg.norm(res.quat, axis=1), 1.0, atol=1e-9)
     # Bit for bit: pairing as in bag order, also after the start, the 30 s gap and the silent magnetometer (with the
     # magnetometer samples the node reports late where it processed them; see the helper).
-    _assert_as_replay_in_the_nodes_order(res, path, tmp_path / 'node.log')
+    _assert_as_replay_in_the_nodes_order(res, path, tmp_path / 'node.log', overtakes=1)  # one silent stretch
     d = res.diagnostics
     assert d['samples answered'] == str(res.n_imu_sent)
     assert int(d['skipped: skipped_bad_gyro']) == injected['bad_gyro']

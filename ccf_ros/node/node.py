@@ -675,7 +675,11 @@ class CcfNode(Node):
         if self.engine.wants_sensor_frame:
             self.engine.set_sensor_frame(path.frame_id(src))
         out = self.engine.on_imu(t, gyr, acc)
-        self._t_imu_done = t + MAG_TOLERANCE_S
+        # The latest stamp processed, not the last: a backward stamp in between must not hide a late sample; a clock
+        # jump back (bag loop) starts a new timeline.
+        done = t + MAG_TOLERANCE_S
+        if done > self._t_imu_done or done < self._t_imu_done - JUMP_BACK_RESET_S:
+            self._t_imu_done = done
         if out is None:
             self._warn_throttled(f'sample at t={t:.6f} s skipped: no orientation yet (no valid accelerometer sample)')
             return

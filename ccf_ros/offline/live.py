@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import random
 import shutil
@@ -162,14 +163,16 @@ def run_live(bag: Path, rate: float = 4.0, timeout_s: float = 120.0, node_qos: s
     types, messages = load_messages(bag, ['/imu/data_raw', '/imu/mag'])
     n_imu = sum(1 for _, topic, _ in messages if topic == '/imu/data_raw')
     levels = ['--log-level', 'warn'] + (['--log-level', 'ccf_node:=debug'] if node_log is not None else [])
-    log = Path(node_log).open('w') if node_log is not None else None  # noqa: SIM115 - closed after the node exited
-    proc = subprocess.Popen(
-        [*node_command(), '--ros-args', '-p', f'qos_reliability:={node_qos}', '-p',
-         f'qos_depth:={10000 if node_qos == "reliable" else 50}', *levels],
-        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE if log is None else log, text=True,
-    )
-    exit_code = None
-    with Recorder('ccf_demo_recorder', 'ccf_node') as rec:
+    with contextlib.ExitStack() as cleanup:  # the log is closed and the node stopped whatever fails on the way
+        log = cleanup.enter_context(Path(node_log).open('w')) if node_log is not None else None
+        proc = subprocess.Popen(
+            [*node_command(), '--ros-args', '-p', f'qos_reliability:={node_qos}', '-p',
+             f'qos_depth:={10000 if node_qos == "reliable" else 50}', *levels],
+            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE if log is None else log, text=True,
+        )
+        stopped: list[int | None] = []
+        cleanup.callback(lambda: stopped or stop(proc))
+        rec = cleanup.enter_context(Recorder('ccf_demo_recorder', 'ccf_node'))
         try:
             deadline = time.time() + 30
             # Wait until the node is up and both directions are matched, so that nothing is sent into the void.
@@ -187,8 +190,7 @@ def run_live(bag: Path, rate: float = 4.0, timeout_s: float = 120.0, node_qos: s
             # Done when every sample is answered, or when nothing more arrives.
             rec.wait_answered(n_imu, timeout_s)
         finally:
-            exit_code = stop(proc)
-            if log is not None:
-                log.close()
+            stopped.append(stop(proc))
+        exit_code = stopped[0]
     t, q, _ = rec.arrays()
     return LiveResult(t_s=t, quat=q, n_imu_sent=n_imu, exit_code=exit_code, diagnostics=dict(rec.diagnostics))
