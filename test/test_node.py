@@ -19,6 +19,7 @@ rclpy = pytest.importorskip('rclpy')
 from conftest import SHARED, copy_bag, need_shared  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from geometry_msgs.msg import Vector3Stamped  # noqa: E402
+from rclpy.duration import Duration  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
@@ -420,6 +421,9 @@ def test_endpoints_that_cannot_match_are_warned_about_once_without_per_wake_even
     ctx2 = rclpy.Context()
     rclpy.init(context=ctx2)
     other = rclpy.create_node('other', context=ctx2)
+    issued = []
+    check = node._check_endpoints
+    node._check_endpoints = lambda: issued.extend(check()) or issued
     try:
         assert len(list(node.waitables)) == len(list(bare.waitables))
         best_effort = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
@@ -427,15 +431,24 @@ def test_endpoints_that_cannot_match_are_warned_about_once_without_per_wake_even
         other.create_publisher(Imu, 'imu/mag', RELIABLE)  # wrong type
         h.io.create_subscription(Imu, 'imu/data', lambda _m: None,
                                  QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        # A reader that wants a sample every 0.1 s at least (the node offers no deadline: infinite).
+        h.io.create_subscription(Vector3Stamped, 'imu/gyro_bias', lambda _m: None,
+                                 QoSProfile(depth=1, deadline=Duration(seconds=0.1)))
         assert h.spin_until(lambda: node.count_publishers('/imu/data_raw') == 2 and node.count_publishers('/imu/mag')
-                            == 2 and node.count_subscribers('/imu/data') == 2)
-        warned = node._check_endpoints()
-        assert len(warned) == 3, warned
-        imu, mag, out = sorted(warned, key=lambda w: ('data_raw' not in w, 'mag' not in w))
+                            == 2 and node.count_subscribers('/imu/data') == 2
+                            and node.count_subscribers('/imu/gyro_bias') >= 1)
+        node._check_endpoints()
+        warned = issued  # by this call and by the node's own 1 Hz timer, which may have run while spinning
+        assert len(warned) == 4, warned
+        bias, imu, mag, out = sorted(warned, key=lambda w: ('gyro_bias' not in w, 'data_raw' not in w,
+                                                            'mag' not in w))
         assert 'publisher /feeder on /imu/data_raw' in imu and 'best-effort' in imu and 'qos_reliability' in imu
         assert 'on /imu/mag' in mag and 'type sensor_msgs/msg/Imu, not sensor_msgs/msg/MagneticField' in mag
         assert 'subscriber /feeder on /imu/data' in out and 'transient-local' in out
-        assert node._check_endpoints() == []  # once per endpoint
+        assert 'subscriber /feeder on /imu/gyro_bias' in bias and 'deadline inf s offered, 0.1 s requested' in bias
+        n = len(issued)
+        node._check_endpoints()
+        assert len(issued) == n  # once per endpoint
     finally:
         other.destroy_node()
         rclpy.try_shutdown(context=ctx2)

@@ -48,6 +48,7 @@ from rclpy.publisher import Publisher
 from rclpy.qos import (
     DurabilityPolicy,
     HistoryPolicy,
+    LivelinessPolicy,
     QoSPolicyKind,
     QoSProfile,
     ReliabilityPolicy,
@@ -114,7 +115,8 @@ def input_qos(reliability: str, depth: int) -> QoSProfile:
 
 def endpoint_mismatch(info: Any, msg_type: str, requested: QoSProfile, offered: QoSProfile | None = None) -> str:
     """Why a remote endpoint (rclpy TopicEndpointInfo) cannot match ours ('' if it can): another message type, or
-    (DDS request/offer) a best-effort writer for a reliable reader or a volatile writer for a transient-local reader.
+    (DDS request/offer) a best-effort writer for a reliable reader, a volatile writer for a transient-local reader,
+    a longer deadline or liveliness lease offered than requested, automatic liveliness for a manual-by-topic reader.
     ``requested``: the reader's QoS (ours, or the remote's with ``offered`` ours)."""
     if info.topic_type != msg_type:
         return f'type {info.topic_type}, not {msg_type}'
@@ -123,7 +125,24 @@ def endpoint_mismatch(info: Any, msg_type: str, requested: QoSProfile, offered: 
         return 'best-effort delivery offered, reliable requested'
     if req.durability == DurabilityPolicy.TRANSIENT_LOCAL and off.durability == DurabilityPolicy.VOLATILE:
         return 'volatile durability offered, transient-local requested'
+    if _period_s(off.deadline) > _period_s(req.deadline):
+        return f'deadline {_period_s(off.deadline):g} s offered, {_period_s(req.deadline):g} s requested'
+    if req.liveliness == LivelinessPolicy.MANUAL_BY_TOPIC and off.liveliness != LivelinessPolicy.MANUAL_BY_TOPIC:
+        return 'automatic liveliness offered, manual-by-topic requested'
+    if _period_s(off.liveliness_lease_duration) > _period_s(req.liveliness_lease_duration):
+        return (f'liveliness lease {_period_s(off.liveliness_lease_duration):g} s offered, '
+                f'{_period_s(req.liveliness_lease_duration):g} s requested')
     return ''
+
+
+def _period_s(d: Any) -> float:
+    """A QoS deadline or lease duration, s: 0 (the default) and the largest duration mean none (infinite)."""
+    ns = d.nanoseconds
+    return math.inf if ns <= 0 or ns >= _INFINITE_NS else ns * 1e-9
+
+
+#: rmw's infinite duration (2^63 - 1 ns, as rclpy reports it), and anything beyond ~292 years.
+_INFINITE_NS = 9_223_372_036_854_775_807
 
 
 def tf_message_type() -> type[Any] | None:
@@ -636,9 +655,12 @@ class CcfNode(Node):
         new = []
         ours: list[tuple[Any, str, bool]] = [(self.sub_imu, 'sensor_msgs/msg/Imu', True),
                                              (self.sub_set_pose, 'geometry_msgs/msg/PoseWithCovarianceStamped', True),
-                                             (self.pub_imu, 'sensor_msgs/msg/Imu', False)]
+                                             (self.pub_imu, 'sensor_msgs/msg/Imu', False),
+                                             (self.pub_bias, 'geometry_msgs/msg/Vector3Stamped', False)]
         if self.sub_mag is not None:
             ours.append((self.sub_mag, 'sensor_msgs/msg/MagneticField', True))
+        if self.pub_tf is not None:
+            ours.append((self.pub_tf, 'tf2_msgs/msg/TFMessage', False))
         for entity, msg_type, is_sub in ours:
             topic = entity.topic_name
             if is_sub:
