@@ -285,6 +285,20 @@ def test_sqlite3_and_ros1_inputs_give_the_same_result(sim_bag, tmp_path):
         assert {'/imu/data_raw', '/imu/mag', '/imu/data', '/imu/gyro_bias'} <= {c.topic for c in r.connections}
 
 
+def test_a_ros1_input_with_a_mount_gives_the_rosbag2_inputs_answers(sim_bag, tmp_path):
+    """The message path turns a ROS 1 message's covariances into the output frame (rosbags gives them as read-only
+    views of the read buffer: the copy is turned; it once raised 'assignment destination is read-only')."""
+    db3 = copy_bag(sim_bag, tmp_path / 'db3', stop_s=5.0, storage='sqlite3')
+    ros1 = to_ros1(db3, tmp_path / 'in.bag')
+    mount = ['--param', 'mount_rotation=[0.1, -0.2, 1.5707963]', '--param', 'output_frame_id=base_link']
+    outs = []
+    for i, src in enumerate((db3, ros1)):
+        assert ccf(['replay', str(src), '-o', str(tmp_path / f'out{i}'), *mount]) == 0
+        outs.append(read_orientations(tmp_path / f'out{i}', '/imu/data'))
+    assert len(outs[0][0]) > 1000
+    np.testing.assert_array_equal(outs[0][1], outs[1][1])
+
+
 def test_replay_publishes_the_engines_rate_and_linear_acceleration(sim_bag, tmp_path):
     """bias_corrected_rate and remove_gravity_vector change the written Imu as they change the node's, on the
     fast path (CDR bytes patched) and the deserializing one (ROS 1 input) alike."""

@@ -55,6 +55,10 @@ def reframe_msg(msg: Any, frame_id: str, rot: Sequence[float] | None) -> None:
     if rot is not None:
         for name in ('angular_velocity_covariance', 'linear_acceleration_covariance'):
             values = rotate_covariance(rot, [float(v) for v in getattr(msg, name)])
+            current = getattr(msg, name)
+            flags = getattr(current, 'flags', None)
+            if flags is not None and not flags.writeable:  # rosbags' ROS 1 arrays are views of the read buffer
+                setattr(msg, name, current.copy())
             try:
                 getattr(msg, name)[:] = values  # numpy (rosbags)
             except TypeError:
