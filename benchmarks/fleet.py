@@ -171,8 +171,8 @@ def per_core(bag: Path, work: Path, repeats: int) -> None:
 def write_big_bag(path: Path, n: int, rate_hz: float = 200.0) -> None:
     """An IMU + magnetometer bag of ``n`` samples (rest, then slow rotations about z with noise), written with
     patched CDR templates (the simulator's message-by-message writer would take many minutes)."""
+    from ccf_ros.messages.cdr import read_imu
     from ccf_ros.offline.bagio import open_writer, staged, typestore
-    from ccf_ros.offline.fastcdr import read_imu
     from ccf_ros.offline.mcap import fast_writer
 
     ts = typestore()

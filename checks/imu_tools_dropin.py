@@ -161,7 +161,7 @@ def angle_deg(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
 
 def imu_stamps(bag: Path) -> np.ndarray:
     """Header stamps (s) of the bag's IMU messages."""
-    from ccf_ros.offline.fastcdr import read_imu
+    from ccf_ros.messages.cdr import read_imu
 
     _, messages = load_messages(bag, [IMU])
     return np.array([read_imu(raw)[0] for _, _, raw in messages])
@@ -233,7 +233,7 @@ def true_linear_acceleration(bag: Path, t_s: np.ndarray) -> np.ndarray:
     """``(N, 3)`` specific force minus gravity (9.80665 m/s², up) in the IMU frame by the reference orientation, at
     the stamps ``t_s`` (NaN where the reference has none)."""
     from ccf_ros.core.quaternion import quat_conj, quat_rotate
-    from ccf_ros.offline.fastcdr import read_imu
+    from ccf_ros.messages.cdr import read_imu
 
     _, messages = load_messages(bag, [IMU])
     acc = {t: a for t, _, _, a in (read_imu(raw) for _, _, raw in messages)}

@@ -246,7 +246,7 @@ def test_health_is_the_same_to_the_bit_on_every_path(fault_bags, tmp_path, monke
     assert json.dumps(runs[1]['metrics'], sort_keys=True) == want
 
 
-def test_the_task_clock_is_stopped_before_the_output_bag_is_published():
+def test_disarm_stops_the_task_clock_and_raises_when_the_time_was_already_up():
     """Publishing (old bag aside, new one renamed in) must not be cut by the timeout: disarm() stops the clock, and
     raises instead when the time was already up, before anything is moved."""
     import time

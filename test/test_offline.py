@@ -288,15 +288,30 @@ def test_sqlite3_and_ros1_inputs_give_the_same_result(sim_bag, tmp_path):
 def test_a_ros1_input_with_a_mount_gives_the_rosbag2_inputs_answers(sim_bag, tmp_path):
     """The message path turns a ROS 1 message's covariances into the output frame (rosbags gives them as read-only
     views of the read buffer: the copy is turned; it once raised 'assignment destination is read-only')."""
-    db3 = copy_bag(sim_bag, tmp_path / 'db3', stop_s=5.0, storage='sqlite3')
+    cov = np.array([4.0, 0.5, 0.1, 0.5, 3.0, 0.2, 0.1, 0.2, 2.0])  # not invariant under the mount's rotation
+
+    def with_covariances(topic, msg, t):
+        if topic == '/imu/data_raw':
+            msg.angular_velocity_covariance = cov * 1e-6
+            msg.linear_acceleration_covariance = cov * 1e-3
+        return [(msg, t)]
+
+    db3 = copy_bag(sim_bag, tmp_path / 'db3', stop_s=5.0, storage='sqlite3', edit=with_covariances)
     ros1 = to_ros1(db3, tmp_path / 'in.bag')
     mount = ['--param', 'mount_rotation=[0.1, -0.2, 1.5707963]', '--param', 'output_frame_id=base_link']
     outs = []
     for i, src in enumerate((db3, ros1)):
         assert ccf(['replay', str(src), '-o', str(tmp_path / f'out{i}'), *mount]) == 0
-        outs.append(read_orientations(tmp_path / f'out{i}', '/imu/data'))
-    assert len(outs[0][0]) > 1000
-    np.testing.assert_array_equal(outs[0][1], outs[1][1])
+        with open_bag(tmp_path / f'out{i}') as r:
+            conn = [c for c in r.connections if c.topic == '/imu/data']
+            msgs = [r.deserialize(raw, c.msgtype) for c, _, raw in r.messages(connections=conn)]
+        outs.append(np.array([[*m.orientation_covariance, *m.angular_velocity_covariance,
+                               *m.linear_acceleration_covariance, m.orientation.w, m.orientation.x]
+                              for m in msgs]))
+        assert {m.header.frame_id for m in msgs} == {'base_link'}
+    assert len(outs[0]) > 1000
+    np.testing.assert_array_equal(outs[0], outs[1])
+    assert not np.allclose(outs[0][0, 9:18], cov * 1e-6)  # turned into the output frame
 
 
 def test_replay_publishes_the_engines_rate_and_linear_acceleration(sim_bag, tmp_path):

@@ -147,7 +147,10 @@ def test_above_means_the_lower_bound_itself_is_refused():
 
 
 def test_old_names_stay_importable():
-    from ccf_ros.node.parameters import PER_AXIS, coerce_parameter, parameter_range
+    from ccf_ros.node import HOLD_S, MAG_TOLERANCE_S, TF_QOS  # names of the former single module ccf_ros.node
+    from ccf_ros.node_support import PER_AXIS, coerce_parameter, parameter_range
+
+    assert HOLD_S == 0.02 and MAG_TOLERANCE_S > 0 and TF_QOS.depth == 100
 
     assert settings.AdapterSettings is settings.EngineSettings
     assert settings.adapter_settings({'mag_bias_y': '2e-5'}).mag_bias == (0.0, 2e-5, 0.0)

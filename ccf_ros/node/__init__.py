@@ -27,5 +27,12 @@ _HOME = {
 def __getattr__(name: str) -> Any:
     home = _HOME.get(name)
     if home is None:
-        raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
+        # The constants the single module ccf_ros.node had (HOLD_S, TF_QOS, ...) live in node.py. Only upper-case
+        # names: ``from ccf_ros.node import sync`` asks here first and must not import rclpy.
+        if not name.isupper():
+            raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
+        module = importlib.import_module(f'{__name__}.node')
+        if not hasattr(module, name):
+            raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
+        return getattr(module, name)
     return getattr(importlib.import_module(f'{__name__}.{home}'), name)
