@@ -8,43 +8,8 @@ New code imports from those. Patching a name here (``read_mag``) does not reach 
 :mod:`ccf_ros.offline.calibrate_mag`.
 """
 
-from ..magcal import (
-    COVERAGE_BINS,
-    COVERAGE_MIN_PER_BIN,
-    COVERAGE_WARN,
-    MAX_AXIS_RATIO,
-    MIN_SAMPLES,
-    MIN_SPAN_SNR,
-    MIN_SPREAD_RATIO,
-    MODELS,
-    SOFT_IRON_MIN_GAIN,
-    CalibrationError,
-    MagCalibration,
-    coverage,
-    fibonacci_directions,
-    fit,
-)
+from .. import magcal as _moved
+from ..magcal import *  # noqa: F403
 from .calibrate_mag import MOTIONS, add_parser, cmd_calibrate_mag, params_yaml, plot, read_mag
 
-__all__ = [
-    'COVERAGE_BINS',
-    'COVERAGE_MIN_PER_BIN',
-    'COVERAGE_WARN',
-    'MAX_AXIS_RATIO',
-    'MIN_SAMPLES',
-    'MIN_SPAN_SNR',
-    'MIN_SPREAD_RATIO',
-    'MODELS',
-    'MOTIONS',
-    'SOFT_IRON_MIN_GAIN',
-    'CalibrationError',
-    'MagCalibration',
-    'add_parser',
-    'cmd_calibrate_mag',
-    'coverage',
-    'fibonacci_directions',
-    'fit',
-    'params_yaml',
-    'plot',
-    'read_mag',
-]
+__all__ = [*_moved.__all__, 'MOTIONS', 'add_parser', 'cmd_calibrate_mag', 'params_yaml', 'plot', 'read_mag']
