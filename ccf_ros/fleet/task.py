@@ -211,7 +211,7 @@ def _health_bulk(reader: Any, bag: str, engine: Any, health: HealthAccumulator, 
     from ..messages.convert import stamp_s
     from ..offline.bagio import deserialize, unreadable
     from ..offline.mcap import McapError, fast_batches
-    from ..offline.replay import decode_chunk
+    from ..offline.replay import decode_chunk, feed_chunk
 
     if not reader.is2:
         return False
@@ -222,9 +222,6 @@ def _health_bulk(reader: Any, bag: str, engine: Any, health: HealthAccumulator, 
     if batches is None:
         return False
     is_imu = np.array([c.id in imu_ids for c in conns])
-    on_imu, on_mag, filt = engine.on_imu, engine.on_mag, engine.filter
-    gated = hasattr(filt, 'mag_disturbed')
-    nan3 = (math.nan, math.nan, math.nan)
     while True:
         try:
             cols = next(batches)
@@ -236,8 +233,6 @@ def _health_bulk(reader: Any, bag: str, engine: Any, health: HealthAccumulator, 
         dec = decode_chunk(cols, imu)
         if dec is not None:
             _, ii, _, t_all, v1, v2 = dec
-            vec1: Any = map(tuple, v1.tolist())
-            vec2: Any = map(tuple, v2.tolist())
         else:  # message by message (rosbags deserializes each)
             t_all, v1, v2 = np.empty(len(imu)), np.zeros((len(imu), 3)), np.zeros((len(imu), 3))
             ii = np.flatnonzero(imu)
@@ -249,19 +244,7 @@ def _health_bulk(reader: Any, bag: str, engine: Any, health: HealthAccumulator, 
                 if imu[k]:
                     v = msg.linear_acceleration
                     v2[k] = (v.x, v.y, v.z)
-            vec1, vec2 = map(tuple, v1.tolist()), map(tuple, v2.tolist())
-        mags: list[Any] = []
-        rejected: list[bool] = []
-        add_mag, add_rej = mags.append, rejected.append
-        for flag, t, a, b in zip(imu.tolist(), t_all.tolist(), vec1, vec2, strict=True):
-            if flag:
-                on_imu(t, a, b)
-                add_mag(engine.paired_mag)
-                add_rej(gated and filt.mag_disturbed)
-            else:
-                on_mag(t, a)
-        mag = np.array([m if m is not None else nan3 for m in mags], dtype=float).reshape(-1, 3)
-        health.add_block(t_all[ii], v1[ii], v2[ii], mag, np.array(rejected, dtype=bool))
+        feed_chunk(engine, imu, ii, t_all, v1, v2, health)
 
 
 def _health_only(bag: str, engine: Any, opts: FleetOptions, health: HealthAccumulator | None = None) -> list[str]:

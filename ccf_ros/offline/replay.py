@@ -374,6 +374,41 @@ def decode_chunk(cols: Any, imu: Any) -> tuple[Any, Any, Any, Any, Any, Any] | N
     return u8, ii, body, t_all, v1, v2
 
 
+def feed_chunk(engine: Any, imu: Any, ii: Any, t_all: Any, v1: Any, v2: Any, health: HealthSink | None = None
+               ) -> list[Output | None]:
+    """A decoded chunk (:func:`decode_chunk`'s ``ii``, ``t_all``, ``v1``, ``v2``; ``imu`` (N,) bool) through the
+    engine in order: the same calls with the same floats (as tuples, like struct gives them) as message by message.
+    Returns the IMU samples' answers; ``health``, if given, gets the chunk's arrays with the paired magnetometer
+    samples and the gate's verdicts. One call per chunk: the per-sample loop stays inside."""
+    on_imu, on_mag = engine.on_imu, engine.on_mag
+    outs: list[Output | None] = []
+    add = outs.append
+    vec1: Any = map(tuple, v1.tolist())
+    vec2: Any = map(tuple, v2.tolist())
+    if health is None:
+        for is_imu, t, a, b in zip(imu.tolist(), t_all.tolist(), vec1, vec2, strict=True):
+            if is_imu:
+                add(on_imu(t, a, b))
+            else:
+                on_mag(t, a)
+        return outs
+    filt = engine.filter
+    gated = hasattr(filt, 'mag_disturbed')
+    mags: list[Any] = []
+    rejected: list[bool] = []
+    add_mag, add_rej = mags.append, rejected.append
+    for is_imu, t, a, b in zip(imu.tolist(), t_all.tolist(), vec1, vec2, strict=True):
+        if is_imu:
+            add(on_imu(t, a, b))
+            add_mag(engine.paired_mag)
+            add_rej(gated and filt.mag_disturbed)
+        else:
+            on_mag(t, a)
+    mag = np.array([m if m is not None else _NAN3 for m in mags], dtype=float).reshape(-1, 3)
+    health.add_block(t_all[ii], v1[ii], v2[ii], mag, np.array(rejected, dtype=bool))
+    return outs
+
+
 class _Replayer:
     """The message loop of :func:`replay`: reads the input in blocks, feeds the engine, writes the output.
 
@@ -534,37 +569,7 @@ class _Replayer:
         if dec is None:
             return None
         u8, ii, body, t_all, v1, v2 = dec
-        on_imu, on_mag = self._engine.on_imu, self._engine.on_mag
-        outs: list[Output | None] = []
-        add = outs.append
-        # The engine sees the same calls, in the same order, with the same floats as message by message.
-        vec1: Any = map(tuple, v1.tolist())  # (as tuples, like struct gives them)
-        vec2: Any = map(tuple, v2.tolist())
-        health = self._health
-        if health is None:
-            for is_imu, t, a, b in zip(imu.tolist(), t_all.tolist(), vec1, vec2, strict=True):
-                if is_imu:
-                    add(on_imu(t, a, b))
-                else:
-                    on_mag(t, a)
-        else:
-            engine = self._engine
-            filt = engine.filter
-            gated = hasattr(filt, 'mag_disturbed')
-            mags: list[Any] = []
-            rejected: list[bool] = []
-            add_mag, add_rej = mags.append, rejected.append
-            # Hot path, the same shape as fleet.task's health-only loop (which keeps no answers): written out in
-            # both, as a shared helper would cost a call per sample.
-            for is_imu, t, a, b in zip(imu.tolist(), t_all.tolist(), vec1, vec2, strict=True):
-                if is_imu:
-                    add(on_imu(t, a, b))
-                    add_mag(engine.paired_mag)
-                    add_rej(gated and filt.mag_disturbed)
-                else:
-                    on_mag(t, a)
-            mag = np.array([m if m is not None else _NAN3 for m in mags], dtype=float).reshape(-1, 3)
-            health.add_block(t_all[ii], v1[ii], v2[ii], mag, np.array(rejected, dtype=bool))
+        outs = feed_chunk(self._engine, imu, ii, t_all, v1, v2, self._health)
         answered = [k for k, o in enumerate(outs) if o is not None]
         if answered:
             sel = np.array(answered)
