@@ -6,6 +6,7 @@ from __future__ import annotations
 import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.qos_overriding_options import InvalidQosOverridesError
 
 from .lifecycle import CcfLifecycleNode
@@ -30,6 +31,12 @@ def main(args: list[str] | None = None, profile: str = 'ccf_node', lifecycle: bo
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except _rclpy.RCLError:
+        # rclpy's signal thread shuts the context down while the executor runs: between its ``context.ok()`` check
+        # and building the next wait set, a SIGINT makes that raise RCLError ('the given context is not valid')
+        # instead of ExternalShutdownException. After a shutdown that is the same clean exit; otherwise a bug.
+        if rclpy.ok():
+            raise
     except Exception as err:
         # Only what the start-up raised is the user's parameters; an error while running is a bug: its traceback.
         if node is not None or not _is_startup_error(err):
