@@ -35,7 +35,6 @@ class _Coefficients:
     k_mag: float
     k_lp: float
     k_min: float
-    k_tilt_min: float
     k_ncf: float
     lp_a: float
     lp12: float
@@ -77,8 +76,6 @@ class _Coefficients:
             # The low-pass's start-up running mean hands over at the rate of a first-order filter of its delay.
             k_lp=-math.expm1(-dt / p.tau_acc_lp_s),
             k_min=-math.expm1(-dt / max(taus)),
-            # The tilt blends alone hand over here (before heading's tau_mag_s): the bias may learn from tilt then.
-            k_tilt_min=-math.expm1(-dt / max(p.tau_acc_s, p.tau_acc_lp_s)),
             k_ncf=-math.expm1(-dt / p.tau_ncf_s),
             lp_a=1.0 - lp[0],
             lp12=lp[1],

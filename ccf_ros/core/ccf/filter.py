@@ -342,15 +342,11 @@ class QuaternionCcf(MagGate):
                 cb = self._bcoef = self._block_coefficients(blk_t)
             bx, by, bz = self._kf.update(
                 cb, blk_n, bx, by, bz, (r0x, r0y, r0z, r1x, r1y, r1z, vx, vy, vz), nx, ny, nz,
-                # (Heading rows only once the heading blend has handed over too.)
-                (h_sum, h_n, self._mag_ref[1], self._mag_weight) if h_n and not ni else None,
+                (h_sum, h_n, self._mag_ref[1], self._mag_weight) if h_n else None,
                 gx * gx + gy * gy + gz * gz,
-                # Not during the tilt blends' start-up (the errors then are the initial attitude's, not the bias's;
-                # the sample before already handed over: ni - 1 >= 1 / k_tilt_min). Not the heading blend's longer
-                # one (tau_mag_s): started while moving, 9-D would learn no bias for 15 s where 6-D learns after
-                # 2.5 s, and the unlearnt bias tilts the attitude (issue 23). Not at rest, where the low-passed gyro
-                # below is far more informative; not without an accelerometer.
-                not ((ni and (ni - 1) * c.k_tilt_min < 1.0) or self.at_rest) and acc_n2 != 0.0,
+                # Not during the start-up (ni): the errors then are the initial attitude's, not the bias's; not at
+                # rest, where the low-passed gyro below is far more informative; not without an accelerometer.
+                not (ni or self.at_rest) and acc_n2 != 0.0,
                 self.at_rest,
             )
             if w_n and not ni:  # (not during the start-up: the attitude itself is still being found)
