@@ -356,7 +356,7 @@ class ImuEngine:
         n_fast = n_fast_out = 0
         last_fast = False
         mag: Vec3 | None = None
-        t = 0.0
+        t_clock = 0.0
         for imu, t, x1, y1, z1, x2, y2, z2 in rows:
             if not imu:
                 if mag_cal is None:
@@ -367,6 +367,7 @@ class ImuEngine:
             k += 1
             if not clean or t - t_last > JUMP_AHEAD_S or t < t_last - JUMP_BACK_RESET_S:
                 # on_imu itself: the first sample, a jump ahead or back, or what follows one
+                self._t_last = t_last  # (kept in a local by the written-out steps)
                 out = self.on_imu(t, (x1, y1, z1), (x2, y2, z2))
                 f = self.filter
                 update = f.update
@@ -387,6 +388,7 @@ class ImuEngine:
             # on_imu's steps for a stamp within JUMP_AHEAD_S after and JUMP_BACK_RESET_S before the latest one
             n_fast += 1
             last_fast = True
+            t_clock = t
             if t > t_last:
                 t_last = t
             mag = pair(t)
@@ -416,7 +418,7 @@ class ImuEngine:
         self.n_out += n_fast_out
         self._t_last = t_last
         if last_fast:
-            self.clock_s = t
+            self.clock_s = t_clock
             self.paired_mag = mag
         return ans
 
