@@ -319,8 +319,10 @@ class ImuEngine:
             self.stale_share = s if (s := self.stale_share * (1.0 - STALE_SHARE_GAIN)) > 1e-6 else 0.0
         return self._output(f.quaternion, status, gyr, acc)
 
-    def on_chunk(self, is_imu: Sequence[bool], t_s: Sequence[float], v1: Columns, v2: Columns,
-                 observe: bool = False) -> ChunkAnswers:
+    def on_chunk(  # noqa: C901 - the bulk path's per-sample loop, one function on purpose (a call per sample costs)
+        self, is_imu: Sequence[bool], t_s: Sequence[float], v1: Columns, v2: Columns, observe: bool = False,
+        answers: bool = True,
+    ) -> ChunkAnswers:
         """Many messages in arrival order, as :meth:`on_imu` (``is_imu``: stamp, rate ``v1``, acceleration ``v2``)
         and :meth:`on_mag` (stamp, field ``v1``; its ``v2`` unused) would take them one by one: the same calls into
         the filter with the same floats, the same state after, the answers as columns (:class:`ChunkAnswers`).
@@ -330,19 +332,25 @@ class ImuEngine:
         clock jump, ...) and any other settings go through :meth:`on_imu` itself. Nothing per sample outlives the
         call but floats in flat lists (no tuple per answer: fewer objects for the garbage collector to scan).
         ``observe``: also the paired magnetometer sample and the gate's verdict per IMU sample (``ccf fleet``'s
-        health)."""
+        health); ``answers`` False: the answers' columns stay empty (the engine's state and counters are the same)."""
         f = self.filter
         ans = ChunkAnswers([], [], [], [], None, None, [] if observe else None, [] if observe else None)
         rows = zip(is_imu, t_s, *v1, *v2, strict=True)
         if (self._reframe is not None or self.hard_iron is not None or self._stateless or self._constant_dt > 0.0
                 or self._remove_g or self._corrected_rate or self._hint_until != math.inf
                 or self._pending_heading is not None):
-            self._chunk_general(rows, ans)
+            self._chunk_general(rows, ans, answers)
             return ans
         answered, quats, variances, biases = ans.answered, ans.quaternion, ans.variance, ans.bias
         mags, rejected = ans.paired_mag, ans.mag_rejected
         add_k, add_q, add_v, add_b = answered.append, quats.extend, variances.extend, biases.extend
-        on_mag, pair, pending = self.on_mag, self.pairer.get, self.pairer.add
+        on_mag = self.on_mag
+        # MagPairer.add and .get written out on its state (kept in locals, written back around on_imu and at the end).
+        pairer = self.pairer
+        pend = pairer._pending
+        push, popleft = pend.append, pend.popleft
+        tol, timeout = pairer.tolerance_s, pairer.timeout_s
+        t_in_use, field = pairer._t_in_use, pairer._field_in_use
         mag_cal = self._mag_cal
         update = f.update
         sd = self._stddev
@@ -360,24 +368,28 @@ class ImuEngine:
         for imu, t, x1, y1, z1, x2, y2, z2 in rows:
             if not imu:
                 if mag_cal is None:
-                    pending(t, (x1, y1, z1))
+                    push((t, (x1, y1, z1)))
                 else:
                     on_mag(t, (x1, y1, z1))
                 continue
             k += 1
             if not clean or t - t_last > JUMP_AHEAD_S or t < t_last - JUMP_BACK_RESET_S:
                 # on_imu itself: the first sample, a jump ahead or back, or what follows one
-                self._t_last = t_last  # (kept in a local by the written-out steps)
+                self._t_last = t_last  # (kept in locals by the written-out steps)
+                pairer._t_in_use, pairer._field_in_use = t_in_use, field
                 out = self.on_imu(t, (x1, y1, z1), (x2, y2, z2))
                 f = self.filter
                 update = f.update
                 t_last = self._t_last
+                t_in_use, field = pairer._t_in_use, pairer._field_in_use
+                pend = pairer._pending
+                push, popleft = pend.append, pend.popleft
                 clean = self._t_ahead is None and self._n_far_back == 0
                 last_fast = False
                 if mags is not None and rejected is not None:
                     mags.append(self.paired_mag)
                     rejected.append(gated and f.mag_disturbed)
-                if out is not None:
+                if out is not None and answers:
                     add_k(k)
                     x, y, z, w = out.orientation_xyzw
                     add_q((w, x, y, z))
@@ -391,7 +403,14 @@ class ImuEngine:
             t_clock = t
             if t > t_last:
                 t_last = t
-            mag = pair(t)
+            if pend:
+                limit = t + tol
+                # Arrival order is (nearly) stamp order: take samples from the front while they are due.
+                while pend and pend[0][0] <= limit:
+                    tm, m = popleft()
+                    if tm >= t_in_use:
+                        t_in_use, field = tm, m
+            mag = None if field is None or t - t_in_use > timeout else field
             status = update(t, (x1, y1, z1), (x2, y2, z2), mag)
             if mags is not None and rejected is not None:
                 mags.append(mag)
@@ -404,6 +423,8 @@ class ImuEngine:
             elif self.stale_share:
                 self.stale_share = s if (s := self.stale_share * (1.0 - STALE_SHARE_GAIN)) > 1e-6 else 0.0
             n_fast_out += 1
+            if not answers:
+                continue
             add_k(k)
             q = f.quaternion
             if turn is not None:
@@ -417,12 +438,13 @@ class ImuEngine:
         self.n_in += n_fast
         self.n_out += n_fast_out
         self._t_last = t_last
+        pairer._t_in_use, pairer._field_in_use = t_in_use, field
         if last_fast:
             self.clock_s = t_clock
             self.paired_mag = mag
         return ans
 
-    def _chunk_general(self, rows: Iterator[tuple[Any, ...]], ans: ChunkAnswers) -> None:
+    def _chunk_general(self, rows: Iterator[tuple[Any, ...]], ans: ChunkAnswers, answers: bool) -> None:
         """:meth:`on_chunk` for any settings: :meth:`on_imu` and :meth:`on_mag` message by message."""
         on_imu, on_mag = self.on_imu, self.on_mag
         mags, rejected = ans.paired_mag, ans.mag_rejected
@@ -438,7 +460,7 @@ class ImuEngine:
             if mags is not None and rejected is not None:
                 mags.append(self.paired_mag)
                 rejected.append(bool(getattr(self.filter, 'mag_disturbed', False)))
-            if out is None:
+            if out is None or not answers:
                 continue
             ans.answered.append(k)
             x, y, z, w = out.orientation_xyzw

@@ -54,6 +54,17 @@ def _state(e: ImuEngine) -> tuple:
     {'use_mag': False},
 ])
 def test_on_chunk_answers_and_state_equal_message_by_message(settings):
+    _compare(settings, True)
+
+
+@pytest.mark.parametrize('settings', [{}, {'mag_bias_x': 1e-6}, {'remove_gravity_vector': True}])
+def test_on_chunk_without_answers_leaves_the_same_state(settings):
+    """The health-only task's call (``answers=False``): no answers collected, the engine's state and the observed
+    magnetometer samples as message by message."""
+    _compare(settings, False)
+
+
+def _compare(settings: dict, answers: bool) -> None:
     is_imu, stamps, v1, v2 = _stream()
     one, bulk = (ImuEngine(*build(settings)) for _ in range(2))
     rng = np.random.default_rng(0)
@@ -71,7 +82,14 @@ def test_on_chunk_answers_and_state_equal_message_by_message(settings):
             else:
                 one.on_mag(stamps[k], tuple(v1[k].tolist()))
         ans = bulk.on_chunk(is_imu[a:b], stamps[a:b], tuple(v1[a:b].T.tolist()), tuple(v2[a:b].T.tolist()),
-                            observe=True)
+                            observe=True, answers=answers)
+        assert ans.paired_mag == mags and ans.mag_rejected == gated
+        assert repr(_state(bulk)) == repr(_state(one))
+        if not answers:
+            assert not (ans.answered or ans.quaternion or ans.variance or ans.bias or ans.rate
+                        or ans.linear_acceleration)
+            n_answers += len(outs)
+            continue
         m = len(outs)
         assert len(ans.answered) == m
         q = np.array(ans.quaternion).reshape(m, 4)
@@ -87,8 +105,6 @@ def test_on_chunk_answers_and_state_equal_message_by_message(settings):
                 assert all(w is None for w in want)
             else:
                 assert np.array(got).tobytes() == np.array(want).tobytes()
-        assert ans.paired_mag == mags and ans.mag_rejected == gated
-        assert repr(_state(bulk)) == repr(_state(one))
         n_answers += m
     # The stream reached every rare path and the answers were many.
     assert one.n_resets_jump == 1 and n_answers > 2800

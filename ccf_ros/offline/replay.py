@@ -374,15 +374,16 @@ def decode_chunk(cols: Any, imu: Any) -> tuple[Any, Any, Any, Any, Any, Any] | N
     return u8, ii, body, t_all, v1, v2
 
 
-def feed_chunk(engine: ImuEngine, imu: Any, ii: Any, t_all: Any, v1: Any, v2: Any, health: HealthSink | None = None
-               ) -> ChunkAnswers:
+def feed_chunk(engine: ImuEngine, imu: Any, ii: Any, t_all: Any, v1: Any, v2: Any, health: HealthSink | None = None,
+               answers: bool = True) -> ChunkAnswers:
     """A decoded chunk (:func:`decode_chunk`'s ``ii``, ``t_all``, ``v1``, ``v2``; ``imu`` (N,) bool) through the
     engine in order (:meth:`ImuEngine.on_chunk`: the same calls with the same floats as message by message).
     Returns the answers as columns; ``health``, if given, gets the chunk's arrays with the paired magnetometer
-    samples and the gate's verdicts. One call per chunk: the per-sample loop stays inside."""
+    samples and the gate's verdicts. One call per chunk: the per-sample loop stays inside. ``answers`` False: no
+    answers are collected (the health-only task)."""
     # Columns of floats, not a list per row: nothing for the garbage collector to track.
     ans = engine.on_chunk(imu.tolist(), t_all.tolist(), tuple(v1.T.tolist()), tuple(v2.T.tolist()),
-                          observe=health is not None)
+                          observe=health is not None, answers=answers)
     if health is not None:
         assert ans.paired_mag is not None and ans.mag_rejected is not None
         mag = np.array([m if m is not None else _NAN3 for m in ans.paired_mag], dtype=float).reshape(-1, 3)
