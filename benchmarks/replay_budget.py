@@ -72,7 +72,9 @@ def main() -> None:  # noqa: C901 (one flat list of stages, each a closure over 
     for (_cols, imu), d in zip(cached, decoded, strict=True):
         _, ii, _, t_all, v1, v2 = d
         ans = eng.on_chunk(imu.tolist(), t_all.tolist(), tuple(v1.T.tolist()), tuple(v2.T.tolist()), observe=True)
-        rows += zip(t_all[ii].tolist(), v1[ii].tolist(), v2[ii].tolist(), ans.paired_mag, strict=True)
+        pm = np.array(ans.paired_mag).reshape(-1, 3).tolist()
+        rows += zip(t_all[ii].tolist(), v1[ii].tolist(), v2[ii].tolist(),
+                    [None if m[0] != m[0] else m for m in pm], strict=True)
     health_in = []
     for d in decoded:
         _, ii, _, t_all, v1, v2 = d

@@ -73,6 +73,7 @@ class Output(NamedTuple):
 
 
 _new_output = tuple.__new__
+_NAN3 = (math.nan, math.nan, math.nan)
 
 
 @dataclass
@@ -87,7 +88,8 @@ class ChunkAnswers:
         bias: (3 M,) flat: gyro-bias estimate, rad/s.
         rate: (M,) :attr:`Output.angular_velocity`, or None (the input's is kept).
         linear_acceleration: (M,) :attr:`Output.linear_acceleration`, or None (the input's is kept).
-        paired_mag: with ``observe``: per IMU sample (answered or not) the paired magnetometer sample (None: none).
+        paired_mag: with ``observe``: (3 N,) flat: per IMU sample (answered or not) the paired magnetometer sample
+            (NaN: none).
         mag_rejected: with ``observe``: per IMU sample whether the filter's disturbance gate rejected the field.
     """
 
@@ -97,7 +99,7 @@ class ChunkAnswers:
     bias: list[float]
     rate: list[Vec3] | None
     linear_acceleration: list[Vec3] | None
-    paired_mag: list[Any] | None
+    paired_mag: list[float] | None
     mag_rejected: list[bool] | None
 
 
@@ -343,6 +345,7 @@ class ImuEngine:
             return ans
         answered, quats, variances, biases = ans.answered, ans.quaternion, ans.variance, ans.bias
         mags, rejected = ans.paired_mag, ans.mag_rejected
+        nan3 = _NAN3
         add_k, add_q, add_v, add_b = answered.append, quats.extend, variances.extend, biases.extend
         on_mag = self.on_mag
         # MagPairer.add and .get written out on its state (kept in locals, written back around on_imu and at the end).
@@ -387,7 +390,7 @@ class ImuEngine:
                 clean = self._t_ahead is None and self._n_far_back == 0
                 last_fast = False
                 if mags is not None and rejected is not None:
-                    mags.append(self.paired_mag)
+                    mags.extend(self.paired_mag or nan3)
                     rejected.append(gated and f.mag_disturbed)
                 if out is not None and answers:
                     add_k(k)
@@ -413,7 +416,7 @@ class ImuEngine:
             mag = None if field is None or t - t_in_use > timeout else field
             status = update(t, (x1, y1, z1), (x2, y2, z2), mag)
             if mags is not None and rejected is not None:
-                mags.append(mag)
+                mags.extend(mag or nan3)
                 rejected.append(gated and f.mag_disturbed)
             if status >= ANSWERED_BELOW:
                 if not f.initialized:
@@ -458,7 +461,7 @@ class ImuEngine:
             k += 1
             out = on_imu(t, (x1, y1, z1), (x2, y2, z2))
             if mags is not None and rejected is not None:
-                mags.append(self.paired_mag)
+                mags.extend(self.paired_mag or _NAN3)
                 rejected.append(bool(getattr(self.filter, 'mag_disturbed', False)))
             if out is None or not answers:
                 continue

@@ -386,7 +386,7 @@ def feed_chunk(engine: ImuEngine, imu: Any, ii: Any, t_all: Any, v1: Any, v2: An
                           observe=health is not None, answers=answers)
     if health is not None:
         assert ans.paired_mag is not None and ans.mag_rejected is not None
-        mag = np.array([m if m is not None else _NAN3 for m in ans.paired_mag], dtype=float).reshape(-1, 3)
+        mag = np.array(ans.paired_mag, dtype=float).reshape(-1, 3)
         health.add_block(t_all[ii], v1[ii], v2[ii], mag, np.array(ans.mag_rejected, dtype=bool))
     return ans
 
