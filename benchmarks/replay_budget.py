@@ -7,7 +7,8 @@ inflates are not in the figures:
 * decode: ``decode_chunk`` (numpy: stamps and vectors of a chunk);
 * filter alone: ``OrientationFilter.update`` over the same samples, the paired magnetometer precomputed (the
   floor: the core's arithmetic and its sample rules, no engine);
-* engine: ``feed_chunk`` (engine glue + filter) over the decoded chunks, without health; and with health;
+* engine: ``feed_chunk`` (engine glue + filter) over the decoded chunks: with answers (replay), without answers,
+  and without answers with health (the health-only task's call);
 * health: ``HealthAccumulator.add_block`` over the chunks' arrays;
 * records + write: the output records framed and written (``replay()`` minus the stages above).
 
@@ -104,11 +105,16 @@ def main() -> None:  # noqa: C901 (one flat list of stages, each a closure over 
         for (_cols, imu), d in zip(cached, decoded, strict=True):
             feed_chunk(e, imu, d[1], d[3], d[4], d[5])
 
+    def engine_no_answers() -> None:
+        e = make_engine(merged, strict)
+        for (_cols, imu), d in zip(cached, decoded, strict=True):
+            feed_chunk(e, imu, d[1], d[3], d[4], d[5], answers=False)
+
     def engine_health() -> None:
         e = make_engine(merged, strict)
         h = HealthAccumulator()
         for (_cols, imu), d in zip(cached, decoded, strict=True):
-            feed_chunk(e, imu, d[1], d[3], d[4], d[5], h)
+            feed_chunk(e, imu, d[1], d[3], d[4], d[5], h, answers=False)
 
     def health() -> None:
         h = HealthAccumulator()
@@ -129,7 +135,7 @@ def main() -> None:  # noqa: C901 (one flat list of stages, each a closure over 
     stages: dict[str, Callable[[], None]] = {
         'bare rosbags read (IMU+mag records)': bare, 'bulk reader (fast_batches)': read, 'decode_chunk': decode,
         'filter alone (update)': filter_alone, 'feed_chunk, no health (glue+filter)': engine_alone,
-        'feed_chunk + health': engine_health, 'health add_block alone': health,
+        'feed_chunk, no answers, no health': engine_no_answers, 'feed_chunk + health, no answers': engine_health, 'health add_block alone': health,
         'replay() whole': replay_all, 'fleet task, health only': task_health}
     cpu: dict[str, list[float]] = {k: [] for k in stages}
     for _ in range(args.repeats):
