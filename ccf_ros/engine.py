@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -46,6 +47,8 @@ JUMP_AHEAD_S = 1.0
 STATE_MAX_AGE_S = 30 * 86400.0
 
 Vec3 = tuple[float, float, float]
+#: Three columns (x, y, z) of N floats each.
+Columns = tuple[Sequence[float], Sequence[float], Sequence[float]]
 
 
 class Output(NamedTuple):
@@ -70,6 +73,34 @@ class Output(NamedTuple):
 
 
 _new_output = tuple.__new__
+_NAN3 = (math.nan, math.nan, math.nan)
+
+
+@dataclass
+class ChunkAnswers:
+    """The answers of :meth:`ImuEngine.on_chunk`, as columns over the answered IMU samples (M of them).
+
+    Attributes:
+        answered: (M,) which IMU samples of the chunk were answered (their index among its IMU samples).
+        quaternion: (4 M,) flat: body->world orientation [w, x, y, z] per answer, turned as
+            :attr:`Output.orientation_xyzw` is.
+        variance: (3 M,) flat: roll, pitch, yaw variance, rad² (the covariance's diagonal; the rest is 0).
+        bias: (3 M,) flat: gyro-bias estimate, rad/s.
+        rate: (M,) :attr:`Output.angular_velocity`, or None (the input's is kept).
+        linear_acceleration: (M,) :attr:`Output.linear_acceleration`, or None (the input's is kept).
+        paired_mag: with ``observe``: (3 N,) flat: per IMU sample (answered or not) the paired magnetometer sample
+            (NaN: none).
+        mag_rejected: with ``observe``: per IMU sample whether the filter's disturbance gate rejected the field.
+    """
+
+    answered: list[int]
+    quaternion: list[float]
+    variance: list[float]
+    bias: list[float]
+    rate: list[Vec3] | None
+    linear_acceleration: list[Vec3] | None
+    paired_mag: list[float] | None
+    mag_rejected: list[bool] | None
 
 
 class ImuEngine:
@@ -289,6 +320,166 @@ class ImuEngine:
             # Exactly 0 again once negligible, so the common path skips this.
             self.stale_share = s if (s := self.stale_share * (1.0 - STALE_SHARE_GAIN)) > 1e-6 else 0.0
         return self._output(f.quaternion, status, gyr, acc)
+
+    def on_chunk(  # noqa: C901 - the bulk path's per-sample loop, one function on purpose (a call per sample costs)
+        self, is_imu: Sequence[bool], t_s: Sequence[float], v1: Columns, v2: Columns, observe: bool = False,
+        answers: bool = True,
+    ) -> ChunkAnswers:
+        """Many messages in arrival order, as :meth:`on_imu` (``is_imu``: stamp, rate ``v1``, acceleration ``v2``)
+        and :meth:`on_mag` (stamp, field ``v1``; its ``v2`` unused) would take them one by one: the same calls into
+        the filter with the same floats, the same state after, the answers as columns (:class:`ChunkAnswers`).
+
+        ``v1`` and ``v2`` are columns: (xs, ys, zs), N floats each. One call per chunk: the per-sample steps the
+        common settings need are written out in one loop here; a sample that needs anything else (the first one, a
+        clock jump, ...) and any other settings go through :meth:`on_imu` itself. Nothing per sample outlives the
+        call but floats in flat lists (no tuple per answer: fewer objects for the garbage collector to scan).
+        ``observe``: also the paired magnetometer sample and the gate's verdict per IMU sample (``ccf fleet``'s
+        health); ``answers`` False: the answers' columns stay empty (the engine's state and counters are the same)."""
+        f = self.filter
+        ans = ChunkAnswers([], [], [], [], None, None, [] if observe else None, [] if observe else None)
+        rows = zip(is_imu, t_s, *v1, *v2, strict=True)
+        if (self._reframe is not None or self.hard_iron is not None or self._stateless or self._constant_dt > 0.0
+                or self._remove_g or self._corrected_rate or self._hint_until != math.inf
+                or self._pending_heading is not None):
+            self._chunk_general(rows, ans, answers)
+            return ans
+        answered, quats, variances, biases = ans.answered, ans.quaternion, ans.variance, ans.bias
+        mags, rejected = ans.paired_mag, ans.mag_rejected
+        nan3 = _NAN3
+        add_k, add_q, add_v, add_b = answered.append, quats.extend, variances.extend, biases.extend
+        on_mag = self.on_mag
+        # MagPairer.add and .get written out on its state (kept in locals, written back around on_imu and at the end).
+        pairer = self.pairer
+        pend = pairer._pending
+        push, popleft = pend.append, pend.popleft
+        tol, timeout = pairer.tolerance_s, pairer.timeout_s
+        t_in_use, field = pairer._t_in_use, pairer._field_in_use
+        mag_cal = self._mag_cal
+        update = f.update
+        sd = self._stddev
+        var_fixed = (sd * sd,) * 3 if sd > 0.0 else None
+        turn = self._turn
+        gated = hasattr(f, 'mag_disturbed')
+        t_last = self._t_last
+        # The common path holds while no lone far-ahead stamp waits and no far-behind samples are counted.
+        clean = self._t_ahead is None and self._n_far_back == 0
+        k = -1  # index among the chunk's IMU samples
+        n_fast = n_fast_out = 0
+        last_fast = False
+        mag: Vec3 | None = None
+        t_clock = 0.0
+        for imu, t, x1, y1, z1, x2, y2, z2 in rows:
+            if not imu:
+                if mag_cal is None:
+                    push((t, (x1, y1, z1)))
+                else:
+                    on_mag(t, (x1, y1, z1))
+                continue
+            k += 1
+            if not clean or t - t_last > JUMP_AHEAD_S or t < t_last - JUMP_BACK_RESET_S:
+                # on_imu itself: the first sample, a jump ahead or back, or what follows one
+                self._t_last = t_last  # (kept in locals by the written-out steps)
+                pairer._t_in_use, pairer._field_in_use = t_in_use, field
+                out = self.on_imu(t, (x1, y1, z1), (x2, y2, z2))
+                f = self.filter
+                update = f.update
+                t_last = self._t_last
+                t_in_use, field = pairer._t_in_use, pairer._field_in_use
+                pend = pairer._pending
+                push, popleft = pend.append, pend.popleft
+                clean = self._t_ahead is None and self._n_far_back == 0
+                last_fast = False
+                if mags is not None and rejected is not None:
+                    mags.extend(self.paired_mag or nan3)
+                    rejected.append(gated and f.mag_disturbed)
+                if out is not None and answers:
+                    add_k(k)
+                    x, y, z, w = out.orientation_xyzw
+                    add_q((w, x, y, z))
+                    c = out.covariance
+                    add_v((c[0], c[4], c[8]))
+                    add_b(out.bias)
+                continue
+            # on_imu's steps for a stamp within JUMP_AHEAD_S after and JUMP_BACK_RESET_S before the latest one
+            n_fast += 1
+            last_fast = True
+            t_clock = t
+            if t > t_last:
+                t_last = t
+            if pend:
+                limit = t + tol
+                # Arrival order is (nearly) stamp order: take samples from the front while they are due.
+                while pend and pend[0][0] <= limit:
+                    tm, m = popleft()
+                    if tm >= t_in_use:
+                        t_in_use, field = tm, m
+            mag = None if field is None or t - t_in_use > timeout else field
+            status = update(t, (x1, y1, z1), (x2, y2, z2), mag)
+            if mags is not None and rejected is not None:
+                mags.extend(mag or nan3)
+                rejected.append(gated and f.mag_disturbed)
+            if status >= ANSWERED_BELOW:
+                if not f.initialized:
+                    continue
+                self.stale_share += STALE_SHARE_GAIN * (1.0 - self.stale_share)
+                self.n_answered_stale += 1
+            elif self.stale_share:
+                self.stale_share = s if (s := self.stale_share * (1.0 - STALE_SHARE_GAIN)) > 1e-6 else 0.0
+            n_fast_out += 1
+            if not answers:
+                continue
+            add_k(k)
+            q = f.quaternion
+            if turn is not None:
+                tc, ts = turn
+                qw, qx, qy, qz = q
+                q = (tc * qw - ts * qz, tc * qx - ts * qy, tc * qy + ts * qx, tc * qz + ts * qw)
+            add_q(q)
+            add_v(var_fixed or f.orientation_variance)
+            add_b(f.gyro_bias)
+        # What the written-out steps leave on the engine (counters, latest stamp, clock, pairing).
+        self.n_in += n_fast
+        self.n_out += n_fast_out
+        self._t_last = t_last
+        pairer._t_in_use, pairer._field_in_use = t_in_use, field
+        if last_fast:
+            self.clock_s = t_clock
+            self.paired_mag = mag
+        return ans
+
+    def _chunk_general(self, rows: Iterator[tuple[Any, ...]], ans: ChunkAnswers, answers: bool) -> None:
+        """:meth:`on_chunk` for any settings: :meth:`on_imu` and :meth:`on_mag` message by message."""
+        on_imu, on_mag = self.on_imu, self.on_mag
+        mags, rejected = ans.paired_mag, ans.mag_rejected
+        rates: list[Vec3] = []
+        lins: list[Vec3] = []
+        k = -1
+        for imu, t, x1, y1, z1, x2, y2, z2 in rows:
+            if not imu:
+                on_mag(t, (x1, y1, z1))
+                continue
+            k += 1
+            out = on_imu(t, (x1, y1, z1), (x2, y2, z2))
+            if mags is not None and rejected is not None:
+                mags.extend(self.paired_mag or _NAN3)
+                rejected.append(bool(getattr(self.filter, 'mag_disturbed', False)))
+            if out is None or not answers:
+                continue
+            ans.answered.append(k)
+            x, y, z, w = out.orientation_xyzw
+            ans.quaternion.extend((w, x, y, z))
+            c = out.covariance
+            ans.variance.extend((c[0], c[4], c[8]))
+            ans.bias.extend(out.bias)
+            if out.angular_velocity is not None:
+                rates.append(out.angular_velocity)
+            if out.linear_acceleration is not None:
+                lins.append(out.linear_acceleration)
+        # (Whether an output replaces the rate or acceleration depends on the settings alone: all or none.)
+        if rates:
+            ans.rate = rates
+        if lins:
+            ans.linear_acceleration = lins
 
     def _output(
         self, q: tuple[float, float, float, float], status: int, gyr: Vec3, acc: Vec3,

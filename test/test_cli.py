@@ -44,21 +44,24 @@ SLOW_ENGINE = '''
     import signal
     import time
     from pathlib import Path
-    from ccf_ros.engine import ImuEngine
+    from ccf_ros.core.base import OrientationFilter
 
     # Ctrl-C as in a terminal, even when the suite runs with SIGINT ignored (started in the background by a
     # non-interactive shell: children inherit the ignore, and Python then installs no handler).
     signal.signal(signal.SIGINT, signal.default_int_handler)
-    _on_imu = ImuEngine.on_imu
+    # The filter's update: every path (message by message, and the bulk path's one engine call per chunk) calls it.
+    _update = OrientationFilter.update
     _mark = os.environ.get('CCF_TEST_MARK')
+    _n = [0]
 
     def _slow(self, *args):
         time.sleep(0.001)
-        if _mark and self.n_in == 500:  # well into the replay: tell the test
+        _n[0] += 1
+        if _mark and _n[0] == 500:  # well into the replay: tell the test
             Path(_mark).touch()
-        return _on_imu(self, *args)
+        return _update(self, *args)
 
-    ImuEngine.on_imu = _slow
+    OrientationFilter.update = _slow
 '''
 
 

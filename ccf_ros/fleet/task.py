@@ -244,7 +244,7 @@ def _health_bulk(reader: Any, bag: str, engine: Any, health: HealthAccumulator, 
                 if imu[k]:
                     v = msg.linear_acceleration
                     v2[k] = (v.x, v.y, v.z)
-        feed_chunk(engine, imu, ii, t_all, v1, v2, health)
+        feed_chunk(engine, imu, ii, t_all, v1, v2, health, answers=False)  # (no output bag: no answers)
 
 
 def _health_only(bag: str, engine: Any, opts: FleetOptions, health: HealthAccumulator | None = None) -> list[str]:

@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
 
 import numpy as np
 
-from ..engine import ImuEngine, Output, Vec3
+from ..engine import ChunkAnswers, ImuEngine, Output, Vec3
 from ..messages.cdr import ANGULAR_VELOCITY, LINEAR_ACCELERATION, LITTLE_ENDIAN_CDR, _gather, stamped_columns
 from ..messages.convert import stamp_s
 from ..messages.paths import FastCdrPath, MessagePath
@@ -374,39 +374,21 @@ def decode_chunk(cols: Any, imu: Any) -> tuple[Any, Any, Any, Any, Any, Any] | N
     return u8, ii, body, t_all, v1, v2
 
 
-def feed_chunk(engine: Any, imu: Any, ii: Any, t_all: Any, v1: Any, v2: Any, health: HealthSink | None = None
-               ) -> list[Output | None]:
+def feed_chunk(engine: ImuEngine, imu: Any, ii: Any, t_all: Any, v1: Any, v2: Any, health: HealthSink | None = None,
+               answers: bool = True) -> ChunkAnswers:
     """A decoded chunk (:func:`decode_chunk`'s ``ii``, ``t_all``, ``v1``, ``v2``; ``imu`` (N,) bool) through the
-    engine in order: the same calls with the same floats (as tuples, like struct gives them) as message by message.
-    Returns the IMU samples' answers; ``health``, if given, gets the chunk's arrays with the paired magnetometer
-    samples and the gate's verdicts. One call per chunk: the per-sample loop stays inside."""
-    on_imu, on_mag = engine.on_imu, engine.on_mag
-    outs: list[Output | None] = []
-    add = outs.append
-    vec1: Any = map(tuple, v1.tolist())
-    vec2: Any = map(tuple, v2.tolist())
-    if health is None:
-        for is_imu, t, a, b in zip(imu.tolist(), t_all.tolist(), vec1, vec2, strict=True):
-            if is_imu:
-                add(on_imu(t, a, b))
-            else:
-                on_mag(t, a)
-        return outs
-    filt = engine.filter
-    gated = hasattr(filt, 'mag_disturbed')
-    mags: list[Any] = []
-    rejected: list[bool] = []
-    add_mag, add_rej = mags.append, rejected.append
-    for is_imu, t, a, b in zip(imu.tolist(), t_all.tolist(), vec1, vec2, strict=True):
-        if is_imu:
-            add(on_imu(t, a, b))
-            add_mag(engine.paired_mag)
-            add_rej(gated and filt.mag_disturbed)
-        else:
-            on_mag(t, a)
-    mag = np.array([m if m is not None else _NAN3 for m in mags], dtype=float).reshape(-1, 3)
-    health.add_block(t_all[ii], v1[ii], v2[ii], mag, np.array(rejected, dtype=bool))
-    return outs
+    engine in order (:meth:`ImuEngine.on_chunk`: the same calls with the same floats as message by message).
+    Returns the answers as columns; ``health``, if given, gets the chunk's arrays with the paired magnetometer
+    samples and the gate's verdicts. One call per chunk: the per-sample loop stays inside. ``answers`` False: no
+    answers are collected (the health-only task)."""
+    # Columns of floats, not a list per row: nothing for the garbage collector to track.
+    ans = engine.on_chunk(imu.tolist(), t_all.tolist(), tuple(v1.T.tolist()), tuple(v2.T.tolist()),
+                          observe=health is not None, answers=answers)
+    if health is not None:
+        assert ans.paired_mag is not None and ans.mag_rejected is not None
+        mag = np.array(ans.paired_mag, dtype=float).reshape(-1, 3)
+        health.add_block(t_all[ii], v1[ii], v2[ii], mag, np.array(ans.mag_rejected, dtype=bool))
+    return ans
 
 
 class _Replayer:
@@ -569,46 +551,51 @@ class _Replayer:
         if dec is None:
             return None
         u8, ii, body, t_all, v1, v2 = dec
-        outs = feed_chunk(self._engine, imu, ii, t_all, v1, v2, self._health)
-        answered = [k for k, o in enumerate(outs) if o is not None]
-        if answered:
-            sel = np.array(answered)
+        ans = feed_chunk(self._engine, imu, ii, t_all, v1, v2, self._health)
+        if ans.answered:
+            sel = np.array(ans.answered)
             with self._outputs.writer.guarded():  # (its file-system errors are BagError)
                 write_records(*self._records(u8, cols.start[ii[sel]], cols.end[ii[sel]], body[sel],
-                                             cols.t_ns[ii[sel]], [outs[k] for k in answered]))
-        return len(answered), len(ii)
+                                             cols.t_ns[ii[sel]], ans))
+        return len(ans.answered), len(ii)
 
-    def _records(self, u8: Any, start: Any, end: Any, body: Any, t_ns: Any, outs: list[Any]) -> tuple[Any, ...]:
+    def _records(self, u8: Any, start: Any, end: Any, body: Any, t_ns: Any, ans: ChunkAnswers) -> tuple[Any, ...]:
         """The framed MCAP records of the answers (Imu, bias, Imu, bias, ...): the input Imu's bytes patched with
         numpy where every message has the same length and header (the usual case), else one by one."""
         imu_id, bias_id = self._outputs.imu.id, self._outputs.bias.id
-        m = len(outs)
+        m = len(ans.answered)
         times = np.repeat(t_ns, 2)
         cids = np.tile(np.array([imu_id, bias_id], dtype=np.int64), m)
         lengths = end - start
-        rate, lin = outs[0].angular_velocity is not None, outs[0].linear_acceleration is not None
-        uniform = ((lengths == lengths[0]).all() and (body == body[0]).all()
-                   and all((o.angular_velocity is not None) == rate and (o.linear_acceleration is not None) == lin
-                           for o in outs))
-        if not uniform:
+        # The orientation (message order x, y, z, w) and the covariance: 13 doubles from the orientation's offset.
+        q = np.array(ans.quaternion, dtype=float).reshape(m, 4)
+        patch = np.zeros((m, 13))
+        patch[:, 0:3], patch[:, 3] = q[:, 1:], q[:, 0]
+        patch[:, 4::4] = np.array(ans.variance, dtype=float).reshape(m, 3)
+        bias = np.array(ans.bias, dtype='<f8').reshape(m, 3)
+        if not ((lengths == lengths[0]).all() and (body == body[0]).all()):
             parts: list[Any] = []
             sizes: list[int] = []
-            for s, e, off, t, out in zip(start.tolist(), end.tolist(), body.tolist(), t_ns.tolist(), outs,
-                                         strict=True):
-                imu, bias = self._fast.serialize((u8[s:e].tobytes(), off, out))
-                for cid, data in ((imu_id, imu), (bias_id, bias)):
+            for k, (s, e, off, t) in enumerate(zip(start.tolist(), end.tolist(), body.tolist(), t_ns.tolist(),
+                                                   strict=True)):
+                p = patch[k].tolist()
+                out = Output((p[0], p[1], p[2], p[3]), tuple(p[4:]), tuple(bias[k].tolist()), 0,
+                             None if ans.rate is None else ans.rate[k],
+                             None if ans.linear_acceleration is None else ans.linear_acceleration[k])
+                imu, b = self._fast.serialize((u8[s:e].tobytes(), off, out))
+                for cid, data in ((imu_id, imu), (bias_id, b)):
                     parts += (_RECORD_HEAD.pack(0x05, 22 + len(data), cid, 0, t, t), data)
                     sizes.append(31 + len(data))
             return b''.join(parts), cids, times, sizes
         size, off = int(lengths[0]), int(body[0])
         rows = u8[start[:, None] + np.arange(size)]
-        rows[:, off:off + 104] = np.array([o.orientation_xyzw + o.covariance for o in outs], dtype='<f8').view(np.uint8)
-        if rate:
+        rows[:, off:off + 104] = patch.astype('<f8').view(np.uint8)
+        if ans.rate is not None:
             rows[:, off + ANGULAR_VELOCITY:off + ANGULAR_VELOCITY + 24] = np.array(
-                [o.angular_velocity for o in outs], dtype='<f8').view(np.uint8)
-        if lin:
+                ans.rate, dtype='<f8').view(np.uint8)
+        if ans.linear_acceleration is not None:
             rows[:, off + LINEAR_ACCELERATION:off + LINEAR_ACCELERATION + 24] = np.array(
-                [o.linear_acceleration for o in outs], dtype='<f8').view(np.uint8)
+                ans.linear_acceleration, dtype='<f8').view(np.uint8)
         r_imu, r_bias = 31 + size, 31 + off + 24
         rec = np.empty((m, r_imu + r_bias), dtype=np.uint8)
         head = np.zeros(m, dtype=_RECORD_DTYPE)
@@ -619,7 +606,7 @@ class _Replayer:
         head['length'], head['cid'] = 22 + off + 24, bias_id
         rec[:, r_imu:r_imu + 31] = head.view(np.uint8).reshape(m, 31)
         rec[:, r_imu + 31:r_imu + 31 + off] = rows[:, :off]
-        rec[:, r_imu + 31 + off:] = np.array([o.bias for o in outs], dtype='<f8').view(np.uint8)
+        rec[:, r_imu + 31 + off:] = bias.view(np.uint8)
         return rec.reshape(-1), cids, times, np.tile(np.array([r_imu, r_bias], dtype=np.int64), m)
 
     def _blocks(self) -> Iterator[list[_Entry]]:

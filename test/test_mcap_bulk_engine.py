@@ -1,0 +1,115 @@
+"""The bulk path's engine call (``ImuEngine.on_chunk``) against the message-by-message one (``on_imu``/``on_mag``):
+same answers to the bit, same engine state after every chunk, on a stream with every stamp fault the engine handles
+(clock jumps, a lone far-ahead stamp, a real gap, repeats, NaN), under the settings that change its per-sample steps."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from ccf_ros.engine import ImuEngine
+from ccf_ros.offline.simulate import generate
+from ccf_ros.settings import build
+
+
+def _stream() -> tuple[list[bool], list[float], np.ndarray, np.ndarray]:
+    """Interleaved magnetometer and IMU messages (mag first, each with its IMU sample's stamp) of 30 s at 100 Hz,
+    with faults: no usable accelerometer at the start, a repeated and a slightly backward stamp, a NaN gyro and a
+    NaN stamp, a lone stamp 5 s ahead, a real 3 s gap, and the clock jumping back 20 s (a restart)."""
+    d = generate(30.0, 100.0, seed=3)
+    t = d.t_s.copy()
+    gyr, acc, mag = d.gyr.copy(), d.acc.copy(), d.mag.copy()
+    acc[:5] = 0.0  # no orientation yet: no answers
+    t[300] = t[299]  # repeated
+    t[400] = t[399] - 0.002  # slightly backward
+    gyr[500] = math.nan
+    t[600] = math.nan
+    t[700] = t[699] + 5.0  # a lone stamp far ahead: skipped
+    t[1000:] += 3.0  # a gap: the filter re-initialises
+    t[2000:] -= 20.0  # the clock jumps back: a restart after JUMP_BACK_SAMPLES
+    n = len(t)
+    is_imu = [False, True] * n
+    stamps = np.repeat(t, 2).tolist()
+    v1 = np.empty((2 * n, 3))
+    v2 = np.zeros((2 * n, 3))
+    v1[0::2], v1[1::2], v2[1::2] = mag, gyr, acc
+    return is_imu, stamps, v1, v2
+
+
+def _state(e: ImuEngine) -> tuple:
+    f = e.filter
+    return (e.n_in, e.n_out, e.counts(), e.n_answered_stale, e.stale_share, e.n_resets_jump, e.clock_s, e.paired_mag,
+            e._t_last, e._t_ahead, e._n_far_back, f.quaternion, f.gyro_bias, f.orientation_variance, f.initialized)
+
+
+@pytest.mark.parametrize('settings', [
+    {},
+    {'yaw_offset': 0.3, 'declination': 0.05},
+    {'orientation_stddev': 0.02},
+    {'mag_bias_x': 1e-6, 'mag_soft_iron': [1.01, 0, 0, 0, 0.99, 0, 0, 0, 1.0]},
+    {'bias_corrected_rate': True, 'remove_gravity_vector': True},
+    {'constant_dt': 0.01},
+    {'use_mag': False},
+])
+def test_on_chunk_answers_and_state_equal_message_by_message(settings):
+    _compare(settings, True)
+
+
+@pytest.mark.parametrize('settings', [{}, {'mag_bias_x': 1e-6}, {'remove_gravity_vector': True}])
+def test_on_chunk_without_answers_leaves_the_same_state(settings):
+    """The health-only task's call (``answers=False``): no answers collected, the engine's state and the observed
+    magnetometer samples as message by message."""
+    _compare(settings, False)
+
+
+def _compare(settings: dict, answers: bool) -> None:
+    is_imu, stamps, v1, v2 = _stream()
+    one, bulk = (ImuEngine(*build(settings)) for _ in range(2))
+    rng = np.random.default_rng(0)
+    cuts = np.unique(np.r_[0, rng.integers(1, len(stamps), 12), len(stamps)])
+    n_answers = 0
+    for a, b in zip(cuts[:-1].tolist(), cuts[1:].tolist(), strict=True):
+        outs, mags, gated = [], [], []
+        for k in range(a, b):
+            if is_imu[k]:
+                o = one.on_imu(stamps[k], tuple(v1[k].tolist()), tuple(v2[k].tolist()))
+                mags.append(one.paired_mag)
+                gated.append(one.filter.mag_disturbed)
+                if o is not None:
+                    outs.append(o)
+            else:
+                one.on_mag(stamps[k], tuple(v1[k].tolist()))
+        ans = bulk.on_chunk(is_imu[a:b], stamps[a:b], tuple(v1[a:b].T.tolist()), tuple(v2[a:b].T.tolist()),
+                            observe=True, answers=answers)
+        assert np.array(ans.paired_mag).tobytes() == np.array([m or (math.nan,) * 3 for m in mags]).tobytes()
+        assert ans.mag_rejected == gated
+        assert repr(_state(bulk)) == repr(_state(one))
+        if not answers:
+            assert not (ans.answered or ans.quaternion or ans.variance or ans.bias or ans.rate
+                        or ans.linear_acceleration)
+            n_answers += len(outs)
+            continue
+        m = len(outs)
+        assert len(ans.answered) == m
+        q = np.array(ans.quaternion).reshape(m, 4)
+        want_q = np.array([o.orientation_xyzw for o in outs]).reshape(m, 4)
+        assert q[:, [1, 2, 3, 0]].tobytes() == want_q.tobytes()
+        want_cov = np.array([o.covariance for o in outs]).reshape(m, 9)
+        assert np.array(ans.variance).reshape(m, 3).tobytes() == want_cov[:, [0, 4, 8]].tobytes()
+        assert not want_cov[:, [1, 2, 3, 5, 6, 7]].any()
+        assert np.array(ans.bias).tobytes() == np.array([o.bias for o in outs]).tobytes()
+        for got, field in ((ans.rate, 'angular_velocity'), (ans.linear_acceleration, 'linear_acceleration')):
+            want = [getattr(o, field) for o in outs]
+            if got is None:
+                assert all(w is None for w in want)
+            else:
+                assert np.array(got).tobytes() == np.array(want).tobytes()
+        n_answers += m
+    # The stream reached every rare path and the answers were many.
+    assert one.n_resets_jump == 1 and n_answers > 2800
+    skipped = one.skipped_by_reason()
+    assert skipped.get('skipped_bad_gyro', 0) == 1, skipped
+    if 'constant_dt' not in settings:  # (its clock replaces the stamps the filter sees)
+        assert skipped.get('skipped_stamp', 0) >= 3, skipped
