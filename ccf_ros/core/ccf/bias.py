@@ -12,13 +12,6 @@ _GATE2 = 3.0**2
 #: cos²(dip) is floored at this when the heading observations' noise is scaled by 1/cos²(dip) (near a magnetic pole
 #: the horizontal field, and so heading, is lost in the tilt error).
 _COS2_DIP_MIN = 0.05
-#: A gyro's rate error from a scale error lies along the rotation axis; its cross-axis sensitivity (and the axes'
-#: misalignment) adds one across it, this share of the scale error's (MPU-9250/MPU-6050: scale factor tolerance
-#: ±3 %, cross-axis sensitivity ±2 %). A bias observation row h (a body-frame direction) sees the two as
-#: s (h.w) and, across, ~c |w x h|: only a rotation about h (or its cross-axis share) makes the row unreliable.
-_CROSS_AXIS = 2.0 / 3.0
-_CROSS_AXIS2 = _CROSS_AXIS * _CROSS_AXIS
-_RATE_LP = False
 
 Vec3 = tuple[float, float, float]
 #: World east, north and up in body coordinates (the rows of the body->world rotation matrix), 3 x 3 flattened.
@@ -52,7 +45,7 @@ class BiasKalman:
         axes: Axes,
         nx: float, ny: float, nz: float,
         heading: Heading | None,
-        w: Vec3,
+        w2: float,
         learn: bool,
         at_rest: bool,
     ) -> Vec3:
@@ -67,8 +60,7 @@ class BiasKalman:
         ``M(R db)``, ``M`` the low-passes it passed (Butterworth then NCF for tilt, NCF alone for heading), ``R`` the
         body->world rows ``axes``. The model runs the same low-passes on ``R`` and on ``R b`` (the estimate's own
         history), so the innovation is ``y + M(R b) - M(R) b``, and ``M(R)`` is the measurement matrix of a Kalman
-        update, one scalar row at a time. ``w``: the gyro rate (rad/s, body), whose scale errors along each row inflate
-        that row's noise. ``learn``: use the observations
+        update, one scalar row at a time. ``w2``: the squared gyro rate, rad²/s². ``learn``: use the observations
         (not during start-up, at rest or without an accelerometer); ``at_rest``: the covariance relaxes to the rest's.
         """
         r0x, r0y, r0z, r1x, r1y, r1z, vx, vy, vz = axes
@@ -80,11 +72,11 @@ class BiasKalman:
             # Seed at a standstill of the low-passes: the Butterworth values (and zero rates) of the tilt
             # quantities, the NCF outputs of the tilt quantities, and those of the heading ones.
             tilt = (r0x, r0y, r0z, r1x, r1y, r1z, rb0, rb1)
-            model = self.model = (tilt, (0.0,) * 8, tilt, (vx, vy, vz, rbv), w)
+            model = self.model = (tilt, (0.0,) * 8, tilt, (vx, vy, vz, rbv))
         else:
             # Unrolled (this runs at 25 Hz, and a loop costs half again as much): Butterworth, then NCF low-pass,
             # of the tilt quantities u; NCF low-pass of the heading ones.
-            (v0, v1, v2, v3, v4, v5, v6, v7), (d0, d1, d2, d3, d4, d5, d6, d7), mt, mh, wl = model
+            (v0, v1, v2, v3, v4, v5, v6, v7), (d0, d1, d2, d3, d4, d5, d6, d7), mt, mh = model
             a, m12, m21, m22, k = c.m_a, c.m12, c.m21, c.m22, c.k_ncf
             e0, e1, e2, e3 = v0 - r0x, v1 - r0y, v2 - r0z, v3 - r1x
             e4, e5, e6, e7 = v4 - r1y, v5 - r1z, v6 - rb0, v7 - rb1
@@ -105,34 +97,21 @@ class BiasKalman:
                 (o0 + k * (v0 - o0), o1 + k * (v1 - o1), o2 + k * (v2 - o2), o3 + k * (v3 - o3),
                  o4 + k * (v4 - o4), o5 + k * (v5 - o5), o6 + k * (v6 - o6), o7 + k * (v7 - o7)),
                 (h0 + k * (vx - h0), h1 + k * (vy - h1), h2 + k * (vz - h2), h3 + k * (rbv - h3)),
-                (wl[0] + k * (w[0] - wl[0]), wl[1] + k * (w[1] - wl[1]), wl[2] + k * (w[2] - wl[2])),
             )
         p00, p01, p02, p11, p12, p22 = self.p
         if learn and c.motion_bias:
-            # Observation noise: (walk tau_bias)² per block, growing with the rotation rate seen along the row (a
-            # scale error's rate error lies along the rotation axis; the cross-axis share across it): the east, north
-            # and up rows by their own rate components. Heading's over cos²(dip).
-            wx, wy, wz = model[4] if _RATE_LP else w
-            r = c.r_tilt
-            q = c.inv_rot2
-            iso = _CROSS_AXIS2 * (wx * wx + wy * wy + wz * wz)
-            a = q * (1.0 - _CROSS_AXIS2)
-            h = r0x * wx + r0y * wy + r0z * wz
-            re = r * (1.0 + q * iso + a * h * h)
-            h = r1x * wx + r1y * wy + r1z * wz
-            rn = r * (1.0 + q * iso + a * h * h)
+            # Observation noise: (walk tau_bias)² per block, growing with the rotation rate; heading's over cos²(dip).
+            r = c.r_tilt * (1.0 + w2 * c.inv_rot2)
             k = -c.inv_tau_ncf
             y0 = k * (r0x * nx + r0y * ny + r0z * nz)
             y1 = k * (r1x * nx + r1y * ny + r1z * nz)
             mt, mh = model[2], model[3]
             # (the row's M(R), its M(R b), the observation, its variance, the gate's noise floor)
-            rows = [(mt[0], mt[1], mt[2], mt[6], y0, re, c.gate_tilt), (mt[3], mt[4], mt[5], mt[7], y1, rn, c.gate_tilt)]
+            rows = [(mt[0], mt[1], mt[2], mt[6], y0, r, c.gate_tilt), (mt[3], mt[4], mt[5], mt[7], y1, r, c.gate_tilt)]
             if heading is not None:
                 # The block's mean heading error; its variance grows as fewer of the block's samples qualified.
                 h_sum, h_n, sd, wgt = heading
-                h = vx * wx + vy * wy + vz * wz
-                ru = r * (1.0 + q * iso + a * h * h)
-                rows.append((*mh, k * h_sum / h_n, ru * n / (h_n * wgt * wgt * max(1.0 - sd * sd, _COS2_DIP_MIN)),
+                rows.append((*mh, k * h_sum / h_n, r * n / (h_n * wgt * wgt * max(1.0 - sd * sd, _COS2_DIP_MIN)),
                              c.gate_head))
             for h0, h1, h2, hb, y, ri, floor2 in rows:
                 nu = y + hb - (h0 * bx + h1 * by + h2 * bz)

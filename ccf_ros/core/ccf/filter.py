@@ -343,7 +343,7 @@ class QuaternionCcf(MagGate):
             bx, by, bz = self._kf.update(
                 cb, blk_n, bx, by, bz, (r0x, r0y, r0z, r1x, r1y, r1z, vx, vy, vz), nx, ny, nz,
                 (h_sum, h_n, self._mag_ref[1], self._mag_weight) if h_n else None,
-                (gx, gy, gz),
+                gx * gx + gy * gy + gz * gz,
                 # Not during the start-up (ni): the errors then are the initial attitude's, not the bias's; not at
                 # rest, where the low-passed gyro below is far more informative; not without an accelerometer.
                 not (ni or self.at_rest) and acc_n2 != 0.0,
