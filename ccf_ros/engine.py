@@ -215,16 +215,22 @@ class ImuEngine:
             acc = (r0 * ax + r1 * ay + r2 * az, r3 * ax + r4 * ay + r5 * az, r6 * ax + r7 * ay + r8 * az)
         return gyr, acc
 
-    def _online_hard_iron(self, t_s: float, gyr: Vec3, mag: Vec3 | None) -> Vec3 | None:
-        """Here, where the magnetometer sample meets the gyro: the estimate pairs them, and the sample reaches the
-        filter with the applied offset subtracted."""
+    def _online_hard_iron(self, t_s: float, mag: Vec3 | None) -> Vec3 | None:
+        """Before the filter's update: the sample kept at the previous message (every 0.1 s) is paired with the
+        orientation the filter reached at it (its own gyro integration, no second one here), and this sample reaches
+        the filter with the applied offset subtracted."""
         hi = self.hard_iron
         assert hi is not None
-        f = self.filter
-        mag = hi.correct(t_s, gyr, f.gyro_bias, mag)
-        if hi.jumped:
-            f.magnetometer_changed()
-        return mag
+        if hi.pending is not None:
+            f = self.filter
+            c = f.counts
+            # No pair spans a restart of the filter (a re-initialisation, a reset: its counts start again, a replaced
+            # filter): its orientation jumps there.
+            hi.pair(f.quaternion if f.initialized else None,
+                    (id(f), c[Status.INITIALIZED] + c[Status.REINITIALIZED_AFTER_GAP]), sum(c))
+            if hi.jumped:
+                f.magnetometer_changed()
+        return hi.correct(t_s, mag)
 
     def _far_ahead(self, t_s: float, t_last: float) -> float:
         """The stamp to use for a sample stamped far after the latest one (rare path)."""
@@ -273,7 +279,7 @@ class ImuEngine:
         self.clock_s = t_s
         f = self.filter
         if self.hard_iron is not None:
-            mag = self._online_hard_iron(t_s, gyr, mag)
+            mag = self._online_hard_iron(t_s, mag)
         self.paired_mag = mag
         if self._stateless:
             return self._stateless_output(t_s, gyr, acc, mag)

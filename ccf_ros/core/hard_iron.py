@@ -28,8 +28,6 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from .base import GYRO_MAX_RAD_S
-
 Vec3 = tuple[float, float, float]
 Quat = tuple[float, float, float, float]
 
@@ -41,10 +39,8 @@ MIN_PAIR_ANGLE_RAD = 0.15
 UPDATE_PERIOD_S = 0.1
 #: The estimate is solved for (and the decision taken) every this many pairs.
 SOLVE_EVERY = 5
-#: A gap in the IMU stream longer than this (s) restarts the gyro integration (no pair spans it).
+#: A gap between kept samples longer than this (s) forgets the stored ones (no pair spans it).
 MAX_DT_S = 0.5
-#: Square of the largest half rotation rate integrated, (rad/s)²: faster samples are corrupted (GYRO_MAX_RAD_S).
-_HALF_STEP_MAX2 = (0.5 * GYRO_MAX_RAD_S) ** 2
 #: Applied once the largest standard deviation of the estimate is below this fraction of the field norm.
 SIGMA_APPLY_REL = 0.02
 #: ... and the model's RMS residual per axis below this fraction of the field norm (else: a world-fixed disturbance).
@@ -61,6 +57,10 @@ MIN_PAIRS = 30
 SHORT_MEMORY_SHARE = 0.2
 #: A first offset is applied only if larger than this fraction of the field norm (see ``_decide``).
 APPLY_MIN_REL = 0.06
+#: Leave out each pair's component that the filter's heading corrections reach (see ``_update``).
+PROJECT_HEADING = True
+#: Equations per pair.
+_DOF = 2.0 if PROJECT_HEADING else 3.0
 #: Statuses of :class:`HardIronStatus`.
 STATUSES = ('not_determined', 'tracking', 'applied')
 
@@ -85,6 +85,11 @@ def _mul(a: Quat, b: Quat) -> Quat:
     bw, bx, by, bz = b
     return (aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
             aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw)
+
+
+def _angle(q: Quat) -> float:
+    """Rotation angle of unit quaternion ``q``, rad."""
+    return 2.0 * math.acos(min(1.0, abs(q[0])))
 
 
 def _matrix(q: Quat) -> np.ndarray:
@@ -141,7 +146,7 @@ class _Fit:
         if not (np.all(np.isfinite(b)) and norm2 > 0):
             return
         norm = math.sqrt(norm2)
-        resid = math.sqrt(max(self.yy - float(b @ self.g), 0.0) / max(3.0 * self.n - 3.0, 1.0))
+        resid = math.sqrt(max(self.yy - float(b @ self.g), 0.0) / max(_DOF * self.n - 3.0, 1.0))
         s2 = max(resid, RESIDUAL_FLOOR_REL * norm) ** 2
         self.estimate, self.norm = b, norm
         self.sigma = np.sqrt(np.maximum(np.diag(H_inv), 0.0) * s2)
@@ -171,6 +176,8 @@ class HardIronEstimator:
         self._short = _Fit()
         self._offset: Vec3 = (0.0, 0.0, 0.0)
         self._status = 'not_determined'
+        #: the magnetometer sample (stamp s, field) waiting for :meth:`pair` (None: none due)
+        self.pending: tuple[float, Vec3] | None = None
         self._restart(-math.inf)
         self.rotation_rad = 0.0
         self._pairs = 0
@@ -178,61 +185,84 @@ class HardIronEstimator:
         self.jumped = False
 
     def _restart(self, t_s: float) -> None:
-        """Forget the gyro integration (a gap, a clock jump); the estimate is kept."""
-        self._t = t_s
-        self._q: Quat = (1.0, 0.0, 0.0, 0.0)
+        """Forget the stored samples (a gap, a clock jump, a filter restart); the estimate is kept."""
+        self._t_next = t_s
         self._history: deque[tuple[float, Quat, np.ndarray]] = deque()
-        self._t_update = -math.inf
         self._turn = 0.0  # rotation since the last accumulated pair, rad
+        self._q_last: Quat | None = None
+        self._epoch: object = None
+        self._count = 0
 
-    def correct(self, t_s: float, gyr: Vec3, bias: Vec3, mag: Vec3 | None) -> Vec3 | None:
-        """One IMU sample: stamp (s), gyro (rad/s) and its bias estimate (rad/s), the paired magnetometer sample (or
-        None). Returns the magnetometer sample minus the applied offset (None if none); sets :attr:`jumped`."""
-        self.jumped = False
-        dt = t_s - self._t
-        if not 0.0 < dt <= MAX_DT_S:
-            if dt != 0.0:
-                self._restart(t_s)
-        else:
-            self._t = t_s
-            hx, hy, hz = (gyr[0] - bias[0]) * dt * 0.5, (gyr[1] - bias[1]) * dt * 0.5, (gyr[2] - bias[2]) * dt * 0.5
-            # Finite and a rotation (the filter skips faster samples as corrupted: GYRO_MAX_RAD_S); a huge finite rate
-            # would overflow the norm below and zero the quaternion.
-            if hx * hx + hy * hy + hz * hz <= _HALF_STEP_MAX2 * dt * dt:
-                qw, qx, qy, qz = self._q  # q (1, h) inlined: this runs at every IMU sample
-                w = qw - qx * hx - qy * hy - qz * hz
-                x = qx + qw * hx + qy * hz - qz * hy
-                y = qy + qw * hy - qx * hz + qz * hx
-                z = qz + qw * hz + qx * hy - qy * hx
-                n = 1.0 / math.sqrt(w * w + x * x + y * y + z * z)
-                self._q = (w * n, x * n, y * n, z * n)
-                step = 2.0 * math.sqrt(hx * hx + hy * hy + hz * hz)
-                self._turn += step
-                self.rotation_rad += step
+    def correct(self, t_s: float, mag: Vec3 | None) -> Vec3 | None:
+        """One IMU sample's stamp (s) and paired magnetometer sample (or None): the sample minus the applied offset
+        (None if none). Every :data:`UPDATE_PERIOD_S` the sample is kept as :attr:`pending`, to be paired by
+        :meth:`pair` with the orientation the filter reaches at it. The per-sample cost: a comparison and a subtraction."""
         if mag is None:
             return None
-        if t_s - self._t_update >= UPDATE_PERIOD_S and all(math.isfinite(v) for v in mag):
-            self._t_update = t_s
-            self._update(t_s, np.array(mag, dtype=float))
+        d = t_s - self._t_next
+        if d >= 0.0 or d < -UPDATE_PERIOD_S:  # due (or the clock went back)
+            self._t_next = t_s + UPDATE_PERIOD_S
+            self.pending = (t_s, mag)
         o = self._offset
         return (mag[0] - o[0], mag[1] - o[1], mag[2] - o[2])
 
-    def _update(self, t_s: float, m: np.ndarray) -> None:
-        """Pair ``m`` with the oldest stored sample within :data:`MAX_LAG_S`, accumulate, re-solve, decide."""
+    def pair(self, q: Quat | None, epoch: object = None, count: int = 0) -> None:
+        """Pair :attr:`pending` with ``q``, the filter's body->world orientation [w, x, y, z] at its stamp (None: the
+        filter has none). ``epoch`` names the filter's continuity, ``count`` the samples it has processed: stored
+        samples of another epoch, or from before a smaller count (a reset), are forgotten (the orientation jumps
+        there). Sets :attr:`jumped`."""
+        self.jumped = False
+        p, self.pending = self.pending, None
+        if p is None:
+            return
+        t_s, mag = p
+        hist = self._history
+        if (q is None or epoch != self._epoch or count < self._count
+                or (hist and not 0.0 < t_s - hist[-1][0] <= MAX_DT_S)):
+            self._restart(t_s)
+            self._t_next = t_s + UPDATE_PERIOD_S
+            self._epoch = epoch
+            if q is None:
+                return
+        self._count = count
+        if not all(math.isfinite(v) for v in mag):
+            return
+        q_last = self._q_last
+        if q_last is not None:
+            # The rotation between stored samples, for the forgetting (the gyro's turn, through the filter).
+            step = _angle(_mul((q_last[0], -q_last[1], -q_last[2], -q_last[3]), q))
+            self._turn += step
+            self.rotation_rad += step
+        self._q_last = q
+        self._update(t_s, q, np.array(mag, dtype=float))
+
+    def _update(self, t_s: float, q: Quat, m: np.ndarray) -> None:
+        """Pair ``m`` (orientation ``q``) with the oldest stored sample within :data:`MAX_LAG_S`, accumulate,
+        re-solve, decide."""
         hist = self._history
         while hist and t_s - hist[0][0] > MAX_LAG_S:
             hist.popleft()
-        q = self._q
         hist.append((t_s, q, m))
         if len(hist) < 2:
             return
         _, q_j, m_j = hist[0]
         r = _mul((q[0], -q[1], -q[2], -q[3]), q_j)  # body j -> body k
-        if 2.0 * math.acos(min(1.0, abs(r[0]))) < MIN_PAIR_ANGLE_RAD:
+        if _angle(r) < MIN_PAIR_ANGLE_RAD:
             return
         M = _matrix(r)
         A = np.eye(3) - M
         y = m - M @ m_j
+        if PROJECT_HEADING:
+            # The filter's heading corrections over the pair turn M about the world's vertical by a small unknown
+            # angle: an error along u = up x (m - b) (the horizontal field turned by 90°, body frame). That component
+            # of the pair is left out (2 of its 3 equations kept), so no heading correction, however large, enters.
+            up = _matrix(q)[2]
+            u = np.cross(up, m - self._long.estimate)
+            nu = float(u @ u)
+            if nu > 0.0:
+                P = np.eye(3) - np.outer(u, u) / nu
+                A = P @ A
+                y = P @ y
         turn, self._turn = self._turn, 0.0
         self._long.add(math.exp(-turn / self.memory_rad), A, y, m)
         self._short.add(math.exp(-turn / (SHORT_MEMORY_SHARE * self.memory_rad)), A, y, m)
