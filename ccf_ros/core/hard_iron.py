@@ -59,6 +59,15 @@ SHORT_MEMORY_SHARE = 0.2
 APPLY_MIN_REL = 0.06
 #: Leave out each pair's component that the filter's heading corrections reach (see ``_update``).
 PROJECT_HEADING = True
+#: Apply only if, with the offset subtracted, the field's norm and vertical component stay within this RMS spread
+#: (fraction of the field norm) over the memory (see ``_Fit.consistent``).
+LEVEL_SPREAD_MAX_REL = 0.05
+#: ... and only if the estimate explains at least this share of the pairs' sum of squares (see ``_Fit.consistent``).
+EXPLAINED_MIN = 0.1
+#: A first offset needs to explain this share of the pairs' sum of squares, or to have this many (forgotten-weighted)
+#: pairs behind it (see ``_decide``).
+EXPLAINED_FIRST = 0.5
+FIRST_MIN_PAIRS = 150
 #: Equations per pair.
 _DOF = 2.0 if PROJECT_HEADING else 3.0
 #: Statuses of :class:`HardIronStatus`.
@@ -113,6 +122,12 @@ class _Fit:
         self.s1 = np.zeros(3)  # sums of m and |m|^2 and their weight: the field norm for any b
         self.s2 = 0.0
         self.w = 0.0
+        # Sums of phi = (|m|², m, up·m, up) and phi phi^T: the spread of the field's norm and vertical component for
+        # any b (see level_spread).
+        self.p1 = np.zeros(8)
+        self.p2 = np.zeros((8, 8))
+        self.level_spread = math.inf
+        self.explained = 0.0  # share of the pairs' sum of squares the estimate explains
         self.estimate = np.zeros(3)
         self.sigma = np.full(3, math.inf)
         self.residual_rel = math.inf
@@ -124,8 +139,10 @@ class _Fit:
         out.__dict__.update({k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in self.__dict__.items()})
         return out
 
-    def add(self, lam: float, A: np.ndarray, y: np.ndarray, m: np.ndarray) -> None:
-        """Decay the sums by ``lam`` and add the pair ``A b = y`` and the sample ``m``."""
+    def add(self, lam: float, A: np.ndarray, y: np.ndarray, m: np.ndarray, phi: np.ndarray) -> None:
+        """Decay the sums by ``lam`` and add the pair ``A b = y``, the sample ``m`` and its level features ``phi``."""
+        self.p1 = lam * self.p1 + phi
+        self.p2 = lam * self.p2 + np.outer(phi, phi)
         self.H = lam * self.H + A.T @ A
         self.g = lam * self.g + A.T @ y
         self.yy = lam * self.yy + float(y @ y)
@@ -151,13 +168,35 @@ class _Fit:
         self.estimate, self.norm = b, norm
         self.sigma = np.sqrt(np.maximum(np.diag(H_inv), 0.0) * s2)
         self.residual_rel = resid / norm
+        self.level_spread = self._level_spread(b, norm)
+        self.explained = float(b @ self.g) / self.yy if self.yy > 0.0 else 0.0
         self.determined = (self.n >= MIN_PAIRS
                            and float(np.max(np.linalg.eigvalsh(H_inv))) * s2 < (SIGMA_APPLY_REL * norm) ** 2)
 
+    def _level_spread(self, b: np.ndarray, norm: float) -> float:
+        """The larger RMS spread, over the memory, of the field's norm and of its vertical component (both free of
+        the heading) with ``b`` subtracted, as a fraction of the field norm ``norm``."""
+        if self.w <= 0.0:
+            return math.inf
+        spreads = []
+        # |m - b|² = |m|² - 2 b·m + |b|²: its spread over (2 norm²) is the norm's relative spread; up·(m - b) over norm.
+        for c, scale in ((np.concatenate(([1.0], -2.0 * b, [0.0], np.zeros(3))), 2.0 * norm * norm),
+                         (np.concatenate(([0.0], np.zeros(3), [1.0], -b)), norm)):
+            mean = float(c @ self.p1) / self.w
+            var = float(c @ self.p2 @ c) / self.w - mean * mean
+            spreads.append(math.sqrt(max(var, 0.0)) / scale)
+        return max(spreads)
+
     @property
     def consistent(self) -> bool:
-        """Determined, and the body-fixed model explains the pairs."""
-        return self.determined and self.residual_rel <= RESIDUAL_MAX_REL
+        """Determined, the body-fixed model explains the pairs, and with the offset subtracted the field's norm and
+        vertical component stay put (a field fixed in the world that varies with position does not)."""
+        if not (self.determined and self.residual_rel <= RESIDUAL_MAX_REL
+                and self.level_spread <= LEVEL_SPREAD_MAX_REL):
+            return False
+        # A real offset explains the pairs' differences it causes; a spurious one (a field that varies with position,
+        # correlated with the turns for a while) explains little of them. (An estimate near 0 claims nothing.)
+        return self.explained >= EXPLAINED_MIN or float(self.estimate @ self.estimate) < (APPLY_MIN_REL * self.norm) ** 2
 
 
 class HardIronEstimator:
@@ -252,11 +291,11 @@ class HardIronEstimator:
         M = _matrix(r)
         A = np.eye(3) - M
         y = m - M @ m_j
+        up = _matrix(q)[2]  # the world's up in the body frame
         if PROJECT_HEADING:
             # The filter's heading corrections over the pair turn M about the world's vertical by a small unknown
             # angle: an error along u = up x (m - b) (the horizontal field turned by 90°, body frame). That component
             # of the pair is left out (2 of its 3 equations kept), so no heading correction, however large, enters.
-            up = _matrix(q)[2]
             u = np.cross(up, m - self._long.estimate)
             nu = float(u @ u)
             if nu > 0.0:
@@ -264,8 +303,9 @@ class HardIronEstimator:
                 A = P @ A
                 y = P @ y
         turn, self._turn = self._turn, 0.0
-        self._long.add(math.exp(-turn / self.memory_rad), A, y, m)
-        self._short.add(math.exp(-turn / (SHORT_MEMORY_SHARE * self.memory_rad)), A, y, m)
+        phi = np.concatenate(([float(m @ m)], m, [float(up @ m)], up))
+        self._long.add(math.exp(-turn / self.memory_rad), A, y, m, phi)
+        self._short.add(math.exp(-turn / (SHORT_MEMORY_SHARE * self.memory_rad)), A, y, m, phi)
         self._pairs += 1
         if self._pairs % SOLVE_EVERY == 0:
             self._decide()
@@ -288,7 +328,8 @@ class HardIronEstimator:
         # A first offset (or one back to 0) must be significant: smaller ones are the room's non-uniformity as
         # much as the sensor's (BROAD's calibrated trials show 1-2.5 uT when translated), left to calibrate-mag.
         applied = self._status == 'applied' or any(self._offset)
-        if not applied and float(np.linalg.norm(b)) < APPLY_MIN_REL * long.norm:
+        if not applied and (float(np.linalg.norm(b)) < APPLY_MIN_REL * long.norm
+                            or (long.explained < EXPLAINED_FIRST and long.n < FIRST_MIN_PAIRS)):
             self._status = 'tracking'
             return
         self._status = 'applied'
