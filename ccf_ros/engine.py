@@ -215,22 +215,19 @@ class ImuEngine:
             acc = (r0 * ax + r1 * ay + r2 * az, r3 * ax + r4 * ay + r5 * az, r6 * ax + r7 * ay + r8 * az)
         return gyr, acc
 
-    def _online_hard_iron(self, t_s: float, mag: Vec3 | None) -> Vec3 | None:
-        """Before the filter's update: the sample kept at the previous message (every 0.1 s) is paired with the
-        orientation the filter reached at it (its own gyro integration, no second one here), and this sample reaches
-        the filter with the applied offset subtracted."""
+    def _online_hard_iron(self) -> None:
+        """Before the filter's update: the magnetometer sample kept at the previous message (every 0.1 s) is paired
+        with the orientation the filter reached at it (its own gyro integration: none is done here)."""
         hi = self.hard_iron
         assert hi is not None
-        if hi.pending is not None:
-            f = self.filter
-            c = f.counts
-            # No pair spans a restart of the filter (a re-initialisation, a reset: its counts start again, a replaced
-            # filter): its orientation jumps there.
-            hi.pair(f.quaternion if f.initialized else None,
-                    (id(f), c[Status.INITIALIZED] + c[Status.REINITIALIZED_AFTER_GAP]), sum(c))
-            if hi.jumped:
-                f.magnetometer_changed()
-        return hi.correct(t_s, mag)
+        f = self.filter
+        c = f.counts
+        # No pair spans a restart of the filter (a re-initialisation, a reset: its counts start again, a replaced
+        # filter): its orientation jumps there.
+        hi.pair(f.quaternion if f.initialized else None,
+                (id(f), c[Status.INITIALIZED] + c[Status.REINITIALIZED_AFTER_GAP]), sum(c))
+        if hi.jumped:
+            f.magnetometer_changed()
 
     def _far_ahead(self, t_s: float, t_last: float) -> float:
         """The stamp to use for a sample stamped far after the latest one (rare path)."""
@@ -278,8 +275,18 @@ class ImuEngine:
             t_s = self._t_const
         self.clock_s = t_s
         f = self.filter
-        if self.hard_iron is not None:
-            mag = self._online_hard_iron(t_s, mag)
+        hi = self.hard_iron
+        if hi is not None:
+            # Online hard iron, inlined (per sample: a test or two): pair the sample kept at the previous message, keep
+            # this one when due, subtract the applied offset.
+            if hi.pending is not None:
+                self._online_hard_iron()
+            if mag is not None:
+                if t_s >= hi.t_next or t_s < hi.t_next - 1.0:
+                    hi.pending = (t_s, mag) if hi.due(t_s) else None
+                o = hi.offset
+                if o is not None:
+                    mag = (mag[0] - o[0], mag[1] - o[1], mag[2] - o[2])
         self.paired_mag = mag
         if self._stateless:
             return self._stateless_output(t_s, gyr, acc, mag)

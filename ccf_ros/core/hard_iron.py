@@ -35,10 +35,14 @@ Quat = tuple[float, float, float, float]
 MAX_LAG_S = 1.0
 #: ... and turned at least this much relative to each other, rad.
 MIN_PAIR_ANGLE_RAD = 0.15
+_COS_HALF_MIN_PAIR = math.cos(0.5 * MIN_PAIR_ANGLE_RAD)
 #: One pair per this period, s (cost; neighbouring samples add little).
 UPDATE_PERIOD_S = 0.1
-#: The estimate is solved for (and the decision taken) every this many pairs.
-SOLVE_EVERY = 5
+#: The pairs are added to the memories (vectorised) and the estimate solved for (the decision taken) every this many
+#: pairs (5 s of turning: the per-call cost of numpy, not the pairs', is what costs).
+SOLVE_EVERY = 50
+#: ... every this many pairs after a decision that moved the applied offset (0.5 s of turning: it is being refined).
+SOLVE_EVERY_MOVING = 5
 #: A gap between kept samples longer than this (s) forgets the stored ones (no pair spans it).
 MAX_DT_S = 0.5
 #: Applied once the largest standard deviation of the estimate is below this fraction of the field norm.
@@ -96,19 +100,30 @@ def _mul(a: Quat, b: Quat) -> Quat:
             aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw)
 
 
-def _angle(q: Quat) -> float:
-    """Rotation angle of unit quaternion ``q``, rad."""
-    return 2.0 * math.acos(min(1.0, abs(q[0])))
+def _dot(a: Quat, b: Quat) -> float:
+    """Dot product of two quaternions: the cosine of half the rotation between two unit ones."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3]
 
 
-def _matrix(q: Quat) -> np.ndarray:
-    """Rotation matrix (3, 3) of unit quaternion ``q`` [w, x, y, z]."""
-    w, x, y, z = q
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
+def _matrices(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices (k, 3, 3) of unit quaternions ``q`` (k, 4) [w, x, y, z]: ``(w² - |v|²) I + 2 v v^T + 2 w [v]x``
+    (few numpy calls: their count, not the arithmetic, is the cost)."""
+    w, v = q[:, 0], q[:, 1:]
+    R = 2.0 * v[:, :, None] * v[:, None, :]
+    R[:, _DIAG, _DIAG] += (w * w - (v * v).sum(axis=1))[:, None]
+    wv = 2.0 * w[:, None] * v
+    R[:, _SKEW_I, _SKEW_J] += wv[:, _SKEW_K] * _SKEW_SIGN
+    return R
+
+
+_DIAG = np.arange(3)
+# [v]x: (i, j) = -v_k for (0,1,2), (1,2,0), (2,0,1); +v_k for the transposed.
+_SKEW_I = np.array([0, 1, 2, 1, 2, 0])
+_SKEW_J = np.array([1, 2, 0, 0, 1, 2])
+_SKEW_K = np.array([2, 0, 1, 2, 0, 1])
+_SKEW_SIGN = np.array([-1.0, -1.0, -1.0, 1.0, 1.0, 1.0])
+_CROSS_1 = np.array([1, 2, 0])
+_CROSS_2 = np.array([2, 0, 1])
 
 
 class _Fit:
@@ -126,6 +141,7 @@ class _Fit:
         # any b (see level_spread).
         self.p1 = np.zeros(8)
         self.p2 = np.zeros((8, 8))
+        self.pw = 0.0  # their weight (0 after restoring a state without them)
         self.level_spread = math.inf
         self.explained = 0.0  # share of the pairs' sum of squares the estimate explains
         self.estimate = np.zeros(3)
@@ -139,17 +155,24 @@ class _Fit:
         out.__dict__.update({k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in self.__dict__.items()})
         return out
 
-    def add(self, lam: float, A: np.ndarray, y: np.ndarray, m: np.ndarray, phi: np.ndarray) -> None:
-        """Decay the sums by ``lam`` and add the pair ``A b = y``, the sample ``m`` and its level features ``phi``."""
-        self.p1 = lam * self.p1 + phi
-        self.p2 = lam * self.p2 + np.outer(phi, phi)
-        self.H = lam * self.H + A.T @ A
-        self.g = lam * self.g + A.T @ y
-        self.yy = lam * self.yy + float(y @ y)
-        self.n = lam * self.n + 1.0
-        self.s1 = lam * self.s1 + m
-        self.s2 = lam * self.s2 + float(m @ m)
-        self.w = lam * self.w + 1.0
+    def add(self, lam: np.ndarray, A: np.ndarray, y: np.ndarray, m: np.ndarray, phi: np.ndarray) -> None:
+        """Add pairs in order, each decaying the sums before it by its ``lam`` (k,): ``A b = y`` (k, 3, 3), (k, 3),
+        the samples ``m`` (k, 3) and their level features ``phi`` (k, 8)."""
+        # Weight of pair i at the end: the decays of the pairs after it.
+        c = np.concatenate((np.cumprod(lam[::-1])[::-1][1:], [1.0]))
+        d = float(np.prod(lam))
+        cs = float(c.sum())
+        Ac = A * c[:, None, None]
+        self.p1 = d * self.p1 + c @ phi
+        self.p2 = d * self.p2 + (phi.T * c) @ phi
+        self.pw = d * self.pw + cs
+        self.H = d * self.H + np.tensordot(Ac, A, axes=((0, 1), (0, 1)))
+        self.g = d * self.g + np.tensordot(Ac, y, axes=((0, 1), (0, 1)))
+        self.yy = d * self.yy + float(c @ (y * y).sum(axis=1))
+        self.n = d * self.n + cs
+        self.s1 = d * self.s1 + c @ m
+        self.s2 = d * self.s2 + float(c @ phi[:, 0])
+        self.w = d * self.w + cs
 
     def solve(self) -> None:
         """Estimate, its sigma, the model residual and whether it is determined (sigma small, enough pairs)."""
@@ -176,14 +199,14 @@ class _Fit:
     def _level_spread(self, b: np.ndarray, norm: float) -> float:
         """The larger RMS spread, over the memory, of the field's norm and of its vertical component (both free of
         the heading) with ``b`` subtracted, as a fraction of the field norm ``norm``."""
-        if self.w <= 0.0:
+        if self.pw <= 0.0:
             return math.inf
         spreads = []
         # |m - b|² = |m|² - 2 b·m + |b|²: its spread over (2 norm²) is the norm's relative spread; up·(m - b) over norm.
         for c, scale in ((np.concatenate(([1.0], -2.0 * b, [0.0], np.zeros(3))), 2.0 * norm * norm),
                          (np.concatenate(([0.0], np.zeros(3), [1.0], -b)), norm)):
-            mean = float(c @ self.p1) / self.w
-            var = float(c @ self.p2 @ c) / self.w - mean * mean
+            mean = float(c @ self.p1) / self.pw
+            var = float(c @ self.p2 @ c) / self.pw - mean * mean
             spreads.append(math.sqrt(max(var, 0.0)) / scale)
         return max(spreads)
 
@@ -214,19 +237,26 @@ class HardIronEstimator:
         self._long = _Fit()
         self._short = _Fit()
         self._offset: Vec3 = (0.0, 0.0, 0.0)
+        #: the applied offset (field unit, body frame), None while it is zero (nothing to subtract)
+        self.offset: Vec3 | None = None
         self._status = 'not_determined'
         #: the magnetometer sample (stamp s, field) waiting for :meth:`pair` (None: none due)
         self.pending: tuple[float, Vec3] | None = None
+        #: a magnetometer sample at or after this stamp is kept for pairing (s; see :meth:`due`)
+        self.t_next = -math.inf
         self._restart(-math.inf)
         self.rotation_rad = 0.0
         self._pairs = 0
+        self._solve_every = SOLVE_EVERY
+        #: pairs not yet added to the memories: (r (4), q (4), m (3), m_j (3), turn) each
+        self._batch: list[tuple[float, ...]] = []
         #: the applied offset changed at the latest :meth:`correct` (the caller tells its filter)
         self.jumped = False
 
     def _restart(self, t_s: float) -> None:
         """Forget the stored samples (a gap, a clock jump, a filter restart); the estimate is kept."""
-        self._t_next = t_s
-        self._history: deque[tuple[float, Quat, np.ndarray]] = deque()
+        self.t_next = t_s
+        self._history: deque[tuple[float, Quat, Vec3]] = deque()
         self._turn = 0.0  # rotation since the last accumulated pair, rad
         self._q_last: Quat | None = None
         self._epoch: object = None
@@ -234,16 +264,23 @@ class HardIronEstimator:
 
     def correct(self, t_s: float, mag: Vec3 | None) -> Vec3 | None:
         """One IMU sample's stamp (s) and paired magnetometer sample (or None): the sample minus the applied offset
-        (None if none). Every :data:`UPDATE_PERIOD_S` the sample is kept as :attr:`pending`, to be paired by
-        :meth:`pair` with the orientation the filter reaches at it. The per-sample cost: a comparison and a subtraction."""
+        (None if none). The sample is kept as :attr:`pending` when due (:meth:`due`), to be paired by :meth:`pair`
+        with the orientation the filter reaches at it. (The engine inlines this: its per-sample cost is a comparison.)"""
         if mag is None:
             return None
-        d = t_s - self._t_next
-        if d >= 0.0 or d < -UPDATE_PERIOD_S:  # due (or the clock went back)
-            self._t_next = t_s + UPDATE_PERIOD_S
+        if self.due(t_s):
             self.pending = (t_s, mag)
-        o = self._offset
-        return (mag[0] - o[0], mag[1] - o[1], mag[2] - o[2])
+        o = self.offset
+        return mag if o is None else (mag[0] - o[0], mag[1] - o[1], mag[2] - o[2])
+
+    def due(self, t_s: float) -> bool:
+        """Whether a magnetometer sample at ``t_s`` (s) is to be kept (every :data:`UPDATE_PERIOD_S`; at once when the
+        clock went back); if so the next is due a period later."""
+        d = t_s - self.t_next
+        if d >= 0.0 or d < -UPDATE_PERIOD_S:
+            self.t_next = t_s + UPDATE_PERIOD_S
+            return True
+        return False
 
     def pair(self, q: Quat | None, epoch: object = None, count: int = 0) -> None:
         """Pair :attr:`pending` with ``q``, the filter's body->world orientation [w, x, y, z] at its stamp (None: the
@@ -259,7 +296,7 @@ class HardIronEstimator:
         if (q is None or epoch != self._epoch or count < self._count
                 or (hist and not 0.0 < t_s - hist[-1][0] <= MAX_DT_S)):
             self._restart(t_s)
-            self._t_next = t_s + UPDATE_PERIOD_S
+            self.t_next = t_s + UPDATE_PERIOD_S
             self._epoch = epoch
             if q is None:
                 return
@@ -269,13 +306,13 @@ class HardIronEstimator:
         q_last = self._q_last
         if q_last is not None:
             # The rotation between stored samples, for the forgetting (the gyro's turn, through the filter).
-            step = _angle(_mul((q_last[0], -q_last[1], -q_last[2], -q_last[3]), q))
+            step = 2.0 * math.acos(min(1.0, abs(_dot(q_last, q))))
             self._turn += step
             self.rotation_rad += step
         self._q_last = q
-        self._update(t_s, q, np.array(mag, dtype=float))
+        self._update(t_s, q, (float(mag[0]), float(mag[1]), float(mag[2])))
 
-    def _update(self, t_s: float, q: Quat, m: np.ndarray) -> None:
+    def _update(self, t_s: float, q: Quat, m: Vec3) -> None:
         """Pair ``m`` (orientation ``q``) with the oldest stored sample within :data:`MAX_LAG_S`, accumulate,
         re-solve, decide."""
         hist = self._history
@@ -285,30 +322,43 @@ class HardIronEstimator:
         if len(hist) < 2:
             return
         _, q_j, m_j = hist[0]
-        r = _mul((q[0], -q[1], -q[2], -q[3]), q_j)  # body j -> body k
-        if _angle(r) < MIN_PAIR_ANGLE_RAD:
+        if abs(_dot(q, q_j)) > _COS_HALF_MIN_PAIR:  # turned less than MIN_PAIR_ANGLE_RAD
             return
-        M = _matrix(r)
+        r = _mul((q[0], -q[1], -q[2], -q[3]), q_j)  # body j -> body k
+        turn, self._turn = self._turn, 0.0
+        self._batch.append((*r, *q, *m, *m_j, turn))
+        self._pairs += 1
+        if len(self._batch) >= self._solve_every:
+            self._fold()
+            before = self._offset
+            self._decide()
+            # While the applied offset moves (being refined), the next decision comes sooner.
+            self._solve_every = SOLVE_EVERY_MOVING if self._offset != before else SOLVE_EVERY
+
+    def _fold(self) -> None:
+        """Add the batch of pairs to both memories (vectorised: numpy's per-call cost, not the pairs', dominates)."""
+        x = np.array(self._batch)
+        self._batch = []
+        k = len(x)
+        R = _matrices(x[:, 0:8].reshape(2 * k, 4))  # (one call for both: numpy's per-call cost is what counts)
+        M = R[0::2]
+        up = R[1::2, 2, :]  # the world's up in the body frame
+        m, m_j, turn = x[:, 8:11], x[:, 11:14], x[:, 14]
         A = np.eye(3) - M
-        y = m - M @ m_j
-        up = _matrix(q)[2]  # the world's up in the body frame
+        y = m - (M @ m_j[:, :, None])[:, :, 0]
         if PROJECT_HEADING:
             # The filter's heading corrections over the pair turn M about the world's vertical by a small unknown
             # angle: an error along u = up x (m - b) (the horizontal field turned by 90°, body frame). That component
             # of the pair is left out (2 of its 3 equations kept), so no heading correction, however large, enters.
-            u = np.cross(up, m - self._long.estimate)
-            nu = float(u @ u)
-            if nu > 0.0:
-                P = np.eye(3) - np.outer(u, u) / nu
-                A = P @ A
-                y = P @ y
-        turn, self._turn = self._turn, 0.0
-        phi = np.concatenate(([float(m @ m)], m, [float(up @ m)], up))
-        self._long.add(math.exp(-turn / self.memory_rad), A, y, m, phi)
-        self._short.add(math.exp(-turn / (SHORT_MEMORY_SHARE * self.memory_rad)), A, y, m, phi)
-        self._pairs += 1
-        if self._pairs % SOLVE_EVERY == 0:
-            self._decide()
+            h = m - self._long.estimate
+            u = up[:, _CROSS_1] * h[:, _CROSS_2] - up[:, _CROSS_2] * h[:, _CROSS_1]  # up x h (np.cross costs 10x)
+            nu = (u * u).sum(axis=1)
+            u = u / np.sqrt(np.where(nu > 0.0, nu, 1.0))[:, None]
+            A = A - u[:, :, None] * (u[:, None, :] @ A)
+            y = y - u * (u * y).sum(axis=1)[:, None]
+        phi = np.concatenate(((m * m).sum(axis=1)[:, None], m, (up * m).sum(axis=1)[:, None], up), axis=1)
+        self._long.add(np.exp(-turn / self.memory_rad), A, y, m, phi)
+        self._short.add(np.exp(-turn / (SHORT_MEMORY_SHARE * self.memory_rad)), A, y, m, phi)
 
     def _decide(self) -> None:
         """Solve both memories; restart the long one from the short one if only the short one fits; apply."""
@@ -334,9 +384,13 @@ class HardIronEstimator:
             return
         self._status = 'applied'
         if step > max(APPLY_FOLLOW_REL * long.norm, 2.0 * float(np.max(long.sigma))):
-            self._offset = (float(b[0]), float(b[1]), float(b[2]))
+            self._set_offset((float(b[0]), float(b[1]), float(b[2])))
             # Refinements are within the filter's disturbance tolerances; a jump is not.
             self.jumped = step > APPLY_STEP_REL * long.norm
+
+    def _set_offset(self, o: Vec3) -> None:
+        self._offset = o
+        self.offset = o if any(o) else None
 
     def status(self) -> HardIronStatus:
         """The estimator's :class:`HardIronStatus`."""
@@ -347,6 +401,8 @@ class HardIronEstimator:
 
     def state(self) -> dict[str, Any]:
         """Everything needed to continue after a restart, as plain floats and lists (for a YAML/JSON file)."""
+        if self._batch:
+            self._fold()
         f = self._long
         f.solve()  # the pairs since the latest decision too (what restore() will solve for)
         return {
@@ -354,7 +410,8 @@ class HardIronEstimator:
             'sigma': [float(v) for v in f.sigma], 'information': [float(v) for v in f.H.ravel()],
             'vector': [float(v) for v in f.g], 'yy': f.yy, 'n': f.n,
             'sum_m': [float(v) for v in f.s1], 'sum_m2': f.s2, 'weight': f.w,
-            'rotation_rad': self.rotation_rad,
+            'level_sum': [float(v) for v in f.p1], 'level_sum2': [float(v) for v in f.p2.ravel()],
+            'level_weight': f.pw, 'rotation_rad': self.rotation_rad,
         }
 
     def restore(self, state: dict[str, Any]) -> None:
@@ -366,17 +423,23 @@ class HardIronEstimator:
             s1 = np.array(state['sum_m'], dtype=float).reshape(3)
             offset = np.array(state['offset'], dtype=float).reshape(3)
             scalars = [float(state[k]) for k in ('yy', 'n', 'sum_m2', 'weight', 'rotation_rad')]
+            # (Absent from states written before the level test: the spread is learnt anew.)
+            p1 = np.array(state.get('level_sum', np.zeros(8)), dtype=float).reshape(8)
+            p2 = np.array(state.get('level_sum2', np.zeros(64)), dtype=float).reshape(8, 8)
+            pw = float(state.get('level_weight', 0.0))
             status = str(state['status'])
         except (KeyError, TypeError, ValueError) as err:
             raise ValueError(f'hard_iron state is malformed: {err!r}') from None
-        values = np.concatenate((H.ravel(), g, s1, offset, scalars))
+        values = np.concatenate((H.ravel(), g, s1, offset, scalars, p1, p2.ravel(), [pw]))
         if not np.all(np.isfinite(values)) or status not in STATUSES:
             raise ValueError(f'hard_iron state has a non-finite value or an unknown status {status!r}')
         f = _Fit()
         f.H, f.g, f.s1 = H, g, s1
         f.yy, f.n, f.s2, f.w, self.rotation_rad = scalars
+        f.p1, f.p2, f.pw = p1, p2, pw
         if f.w > 0:
             f.solve()
         self._long, self._short = f, _Fit()
-        self._offset = (float(offset[0]), float(offset[1]), float(offset[2]))
+        self._batch = []
+        self._set_offset((float(offset[0]), float(offset[1]), float(offset[2])))
         self._status = status
