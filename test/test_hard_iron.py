@@ -64,9 +64,9 @@ def test_a_body_fixed_offset_is_found_applied_and_the_heading_recovers(hand, mon
     assert probe.residual_rel < 0.017  # measured 1.42 % of the field: the noise
     assert calls  # the filter was told each time the applied offset moved
     after = hand.moving & (hand.t_s - hand.t_s[0] >= 65.0)
-    q_clean, _, _ = run({}, hand.t_s, hand.gyr, hand.acc, hand.mag)
+    q_clean, _, _ = run(OFF, hand.t_s, hand.gyr, hand.acc, hand.mag)
     assert heading(q_on, hand, after) < 1.12 * heading(q_clean, hand, after)  # measured 0.378 vs 0.506 deg
-    q_off, _, _ = run({}, dist.t_s, dist.gyr, dist.acc, dist.mag)
+    q_off, _, _ = run(OFF, dist.t_s, dist.gyr, dist.acc, dist.mag)
     assert heading(q_off, hand, after) > 40.0  # measured 52 deg without it
     # The engine reports it; the sample given to the filter has the offset subtracted.
     s = eng.hard_iron_status()
@@ -79,7 +79,7 @@ def test_a_world_fixed_dipole_is_not_followed(hand):
     s = eng.hard_iron_status()
     assert s.offset == (0.0, 0.0, 0.0) and s.status == 'tracking'
     assert s.residual_rel > 0.05  # measured 6.85 %: the body-fixed model does not hold
-    q_off, _, _ = run({}, d.t_s, d.gyr, d.acc, d.mag)
+    q_off, _, _ = run(OFF, d.t_s, d.gyr, d.acc, d.mag)
     np.testing.assert_array_equal(q_on, q_off)
 
 
@@ -94,8 +94,10 @@ def test_an_offset_that_goes_away_is_dropped():
     assert s.status == 'applied' and np.linalg.norm(s.offset) < 1e-6, s
 
 
-def test_off_by_default_and_the_state_survives_a_restart(hand):
+def test_on_by_default_and_the_state_survives_a_restart(hand):
     eng = ImuEngine(*build({}))
+    assert eng.hard_iron is not None and eng.hard_iron_status().status == 'not_determined'
+    eng = ImuEngine(*build(OFF))
     assert eng.hard_iron is None and eng.hard_iron_status() is None and eng.hard_iron_state() is None
     dist = with_mag_distortion(hand, OFFSET_T)
     _, first, _ = run(ON, dist.t_s, dist.gyr, dist.acc, dist.mag)
@@ -116,7 +118,7 @@ def test_off_by_default_and_the_state_survives_a_restart(hand):
         fresh.restore_hard_iron(dict(state, status='sure'))
     assert fresh.hard_iron_status().offset == s0.offset  # unchanged by the bad states
     # Turning it off drops it; on again starts from nothing.
-    fresh.set_settings(build({})[1])
+    fresh.set_settings(build(OFF)[1])
     assert fresh.hard_iron is None
     fresh.set_settings(build(ON)[1])
     assert fresh.hard_iron_status().status == 'not_determined'
@@ -165,7 +167,7 @@ def test_the_node_diagnostics_show_the_hard_iron_status(hand):
     from ccf_ros.node.sync import HoldStats
 
     hold = HoldStats(0, 0, 0.0, 0.0, False)
-    off = diagnostics(time.monotonic(), InputStats(), ImuEngine(*build({})), hold, use_mag=True, mag_timeout_s=0.5)
+    off = diagnostics(time.monotonic(), InputStats(), ImuEngine(*build(OFF)), hold, use_mag=True, mag_timeout_s=0.5)
     assert off.values['online hard iron'] == 'off'
     dist = with_mag_distortion(hand, OFFSET_T)
     _, eng, _ = run(ON, dist.t_s[:9000], dist.gyr[:9000], dist.acc[:9000], dist.mag[:9000])
@@ -193,7 +195,8 @@ def test_ccf_replay_runs_the_online_estimate(tmp_path, capsys):
         late = s.t_s - s.t_s[0] >= 100.0  # the heading has converged after the offset was applied
         return summarize(s.q_est[late], s.q_ref[late], s.mask[late]).heading_rmse_deg
 
-    ref, off, on = heading(clean), heading(bag), heading(bag, '--param', 'mag_online_calibration=true')
+    ref, on = heading(clean), heading(bag)  # (on by default)
+    off = heading(bag, '--param', 'mag_online_calibration=false')
     assert off > 40.0 and on < 1.3 * ref, (ref, off, on)  # measured 0.507, 53.4, 0.553 deg (1.09x)
 
 
