@@ -59,7 +59,7 @@ def main() -> None:
     mag = [tuple(v) for v in m[:n].tolist()]
     has_mag = np.all(np.isfinite(m[:n]), axis=1).tolist()
     runs = {'off': {'mag_online_calibration': False}, 'on': {'mag_online_calibration': True}}
-    best = {k: np.inf for k in runs}
+    best = dict.fromkeys(runs, np.inf)
     for _ in range(a.rounds):
         for k, s in runs.items():
             best[k] = min(best[k], feed(s, t, gyr, acc, mag, has_mag))
@@ -69,10 +69,10 @@ def main() -> None:
     originals = {k: getattr(est, v) for k, v in names.items() if hasattr(est, v)}
     counts = dict.fromkeys(originals, 0)
 
-    def counting(key: str):  # noqa: ANN202
+    def counting(key: str):
         f = originals[key]
 
-        def wrapped(self, *args, **kw):  # noqa: ANN001, ANN002, ANN003, ANN202
+        def wrapped(self, *args, **kw):
             counts[key] += 1
             return f(self, *args, **kw)
         return wrapped

@@ -240,7 +240,7 @@ class ImuEngine:
         self._t_ahead = None  # the stream goes on from there: a real gap (the filter re-initialises)
         return t_s
 
-    def on_imu(self, t_s: float, gyr: Vec3, acc: Vec3) -> Output | None:
+    def on_imu(self, t_s: float, gyr: Vec3, acc: Vec3) -> Output | None:  # noqa: C901 - the per-sample path: inlined on purpose
         """An IMU message: stamp (s), rate (rad/s), specific force (m/s²).
 
         Returns the output, or None before the first usable accelerometer sample (no orientation exists yet).

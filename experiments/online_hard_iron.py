@@ -22,13 +22,13 @@ from typing import Any
 
 import numpy as np
 from _trials import map_trials, parser, trials_and_settings
+from simulated_accuracy import mag_env_data
 
 from ccf_ros.core.metrics import summarize
 from ccf_ros.engine import ImuEngine
 from ccf_ros.offline.bagio import read_bools, read_imu_arrays, read_orientations
 from ccf_ros.offline.evaluate import align, engine_orientations, mask_at
 from ccf_ros.offline.simulate import SimData, dipole_field, generate
-from simulated_accuracy import mag_env_data
 from ccf_ros.settings import build
 
 OFFSET_T = np.array([30.0, -12.0, 8.0]) * 1e-6

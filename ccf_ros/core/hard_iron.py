@@ -109,7 +109,7 @@ def _matrices(q: np.ndarray) -> np.ndarray:
     """Rotation matrices (k, 3, 3) of unit quaternions ``q`` (k, 4) [w, x, y, z]: ``(w² - |v|²) I + 2 v v^T + 2 w [v]x``
     (few numpy calls: their count, not the arithmetic, is the cost)."""
     w, v = q[:, 0], q[:, 1:]
-    R = 2.0 * v[:, :, None] * v[:, None, :]
+    R: np.ndarray = 2.0 * v[:, :, None] * v[:, None, :]
     R[:, _DIAG, _DIAG] += (w * w - (v * v).sum(axis=1))[:, None]
     wv = 2.0 * w[:, None] * v
     R[:, _SKEW_I, _SKEW_J] += wv[:, _SKEW_K] * _SKEW_SIGN
