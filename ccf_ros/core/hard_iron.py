@@ -1,19 +1,24 @@
 """Online hard-iron estimation: the magnetometer offset that turns with the body, told from a field fixed in the world.
 
 Model: ``m_k = R_k^T f + b`` with ``b`` the offset (body frame), ``f`` the field in the world and ``R_k`` the
-orientation (body -> world). Between two samples ``j`` and ``k`` the gyro gives the body's turn ``M = R_k^T R_j``,
-and ``m_k - b = M (m_j - b)`` whatever ``f`` is: ``(I - M) b = m_k - M m_j``, linear in ``b``, free of the heading
-(no circularity with the filter's own magnetometer use) and of the world field. A body-fixed offset satisfies it at
+orientation (body -> world). Between two samples ``j`` and ``k`` the body's turn is ``M = R_k^T R_j``, and
+``m_k - b = M (m_j - b)`` whatever ``f`` is: ``(I - M) b = m_k - M m_j``, linear in ``b``, free of the heading and of
+the world field. ``R`` is the filter's own orientation (:meth:`HardIronEstimator.pair`, no second gyro integration):
+over a pair it differs from the gyro's by the filter's corrections, small (doc/magnetometer_calibration.md), and each
+pair's component that a heading correction reaches is left out (``_fold``). A body-fixed offset satisfies it at
 every pair; a field that changes in the world as the sensor moves (a magnet in the room, steel in the floor) does not,
-and shows as a residual. The pairs span up to :data:`MAX_LAG_S` of gyro integration (its bias drift stays small) and
-at least :data:`MIN_PAIR_ANGLE_RAD` of turn (a smaller turn says little of ``b``).
+and shows as a residual. The pairs span up to :data:`MAX_LAG_S` and at least :data:`MIN_PAIR_ANGLE_RAD` of turn (a
+smaller turn says little of ``b``).
 
 Least squares with forgetting by rotation: every pair's information decays by ``exp(-turn / memory_rad)``, so the
 estimate remembers the latest ``memory_rad`` of rotation and nothing is forgotten (or learnt) at rest. A second, short
 memory (:data:`SHORT_MEMORY_SHARE`) tells an offset that changed (a magnet attached or taken off: only the recent pairs
 fit) from a field that changes in the world (neither fits). The offset is applied once at least :data:`MIN_PAIRS`
 pairs are in, its largest standard deviation is below :data:`SIGMA_APPLY_REL` of the field norm, the model's residual
-is below :data:`RESIDUAL_MAX_REL` of it and, for a first offset, it is larger than :data:`APPLY_MIN_REL` of it; while
+is below :data:`RESIDUAL_MAX_REL` of it, with it subtracted the field's norm and vertical component spread less than
+:data:`LEVEL_SPREAD_MAX_REL`, it explains :data:`EXPLAINED_MIN` of the pairs' variation and, for a first offset, it
+is larger than :data:`APPLY_MIN_REL` of the norm and explains :data:`EXPLAINED_FIRST` (or :data:`FIRST_MIN_PAIRS`
+pairs stand behind it); while
 the model does not fit, nothing new is applied (what was applied stays). Thresholds are relative to the field norm,
 so the field's unit does not matter.
 
