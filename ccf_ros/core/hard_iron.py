@@ -228,7 +228,8 @@ class _Fit:
 
 
 class HardIronEstimator:
-    """Recursive least-squares estimate of a body-fixed magnetometer offset from gyro and magnetometer samples.
+    """Recursive least-squares estimate of a body-fixed magnetometer offset from magnetometer samples and the filter's
+    orientation at them.
 
     Two memories: ``memory_rad`` (the estimate) and :data:`SHORT_MEMORY_SHARE` of it. When the long one no longer
     fits (an offset that changed: a magnet attached or taken off) but the short one does, the long one restarts from
