@@ -246,16 +246,19 @@ class ImuEngine:
             acc = (r0 * ax + r1 * ay + r2 * az, r3 * ax + r4 * ay + r5 * az, r6 * ax + r7 * ay + r8 * az)
         return gyr, acc
 
-    def _online_hard_iron(self, t_s: float, gyr: Vec3, mag: Vec3 | None) -> Vec3 | None:
-        """Here, where the magnetometer sample meets the gyro: the estimate pairs them, and the sample reaches the
-        filter with the applied offset subtracted."""
+    def _online_hard_iron(self) -> None:
+        """Before the filter's update: the magnetometer sample kept at the previous message (every 0.1 s) is paired
+        with the orientation the filter reached at it (its own gyro integration: none is done here)."""
         hi = self.hard_iron
         assert hi is not None
         f = self.filter
-        mag = hi.correct(t_s, gyr, f.gyro_bias, mag)
+        c = f.counts
+        # No pair spans a restart of the filter (a re-initialisation, a reset: its counts start again, a replaced
+        # filter): its orientation jumps there.
+        hi.pair(f.quaternion if f.initialized else None,
+                (id(f), c[Status.INITIALIZED] + c[Status.REINITIALIZED_AFTER_GAP]), sum(c))
         if hi.jumped:
             f.magnetometer_changed()
-        return mag
 
     def _far_ahead(self, t_s: float, t_last: float) -> float:
         """The stamp to use for a sample stamped far after the latest one (rare path)."""
@@ -268,7 +271,7 @@ class ImuEngine:
         self._t_ahead = None  # the stream goes on from there: a real gap (the filter re-initialises)
         return t_s
 
-    def on_imu(self, t_s: float, gyr: Vec3, acc: Vec3) -> Output | None:
+    def on_imu(self, t_s: float, gyr: Vec3, acc: Vec3) -> Output | None:  # noqa: C901 - the per-sample path: inlined on purpose
         """An IMU message: stamp (s), rate (rad/s), specific force (m/s²).
 
         Returns the output, or None before the first usable accelerometer sample (no orientation exists yet).
@@ -303,8 +306,18 @@ class ImuEngine:
             t_s = self._t_const
         self.clock_s = t_s
         f = self.filter
-        if self.hard_iron is not None:
-            mag = self._online_hard_iron(t_s, gyr, mag)
+        hi = self.hard_iron
+        if hi is not None:
+            # Online hard iron, inlined (per sample: a test or two): pair the sample kept at the previous message, keep
+            # this one when due, subtract the applied offset.
+            if hi.pending is not None:
+                self._online_hard_iron()
+            if mag is not None:
+                if t_s >= hi.t_next or t_s < hi.t_next - 1.0:
+                    hi.pending = (t_s, mag) if hi.due(t_s) else None
+                o = hi.offset
+                if o is not None:
+                    mag = (mag[0] - o[0], mag[1] - o[1], mag[2] - o[2])
         self.paired_mag = mag
         if self._stateless:
             return self._stateless_output(t_s, gyr, acc, mag)

@@ -81,8 +81,9 @@ class EngineSettings:
         False, '-', '6-D: also keep the heading in bias_file, so that a restart goes on from the heading it had '
         '(the robot must not have turned while the node was down)')
     mag_online_calibration: bool = param(
-        False, '-', 'estimate the magnetometer hard-iron offset while the sensor turns (gyro-paired, a field '
-        'fixed in the world is not followed) and subtract it once determined, after mag_bias_*')
+        True, '-', 'estimate the magnetometer hard-iron offset while the sensor turns (samples paired through '
+        "the filter's orientation; a field fixed in the world is not followed) and subtract it once determined, "
+        'after mag_bias_*')
     mag_online_memory_rad: float = param(
         60.0, 'rad', 'rotation the online hard-iron estimate remembers, rad (1 to 1e6; older pairs fade by '
         'exp(-turn / this))', 1.0, 1e6)

@@ -38,3 +38,20 @@ def map_trials(fn: Callable[[Any], Any], jobs: Iterable[Any]) -> list[Any]:
     """``fn`` over ``jobs`` in two worker processes (this machine's cores), results in order."""
     with ProcessPoolExecutor(2) as ex:
         return list(ex.map(fn, jobs))
+
+
+def run_9d(filt: Any, adapter: Any, t: Any, gyr: Any, acc: Any, mag: Any) -> tuple[Any, Any]:
+    """(quat (N,4), answered (N,) bool) of ``filt`` on the arrays: through the core's ``run_batch``, or, when the
+    engine adds something to the filter (``mag_online_calibration``: the online hard iron lives in the engine), through
+    the engine as ``ccf replay`` runs it (a NaN row of ``mag``: no magnetometer message)."""
+    import numpy as np
+
+    from ccf_ros.core import run_batch
+    from ccf_ros.engine import ImuEngine
+    from ccf_ros.offline.evaluate import engine_orientations
+
+    if mag is None or not adapter.mag_online_calibration:
+        r = run_batch(filt, t, gyr, acc, mag)
+        return r.quat, r.answered
+    q = engine_orientations(ImuEngine(filt, adapter), t, gyr, acc, mag)
+    return q, np.all(np.isfinite(q), axis=1)

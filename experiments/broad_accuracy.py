@@ -14,9 +14,8 @@ import time
 from pathlib import Path
 
 import numpy as np
-from _trials import map_trials, parser, trials_and_settings
+from _trials import map_trials, parser, run_9d, trials_and_settings
 
-from ccf_ros.core import run_batch
 from ccf_ros.core.metrics import fitted_total_rmse_deg, summarize
 from ccf_ros.offline.bagio import read_bools, read_imu_arrays, read_orientations
 from ccf_ros.offline.evaluate import align, mask_at
@@ -54,12 +53,12 @@ def run_trial(args: tuple[Path, list[int], dict[str, str], bool]) -> tuple[str, 
     runs += [('6d', 1, False)] if six_d else []
     for key, step, use_mag in runs:
         t, gyr, acc, mag = _decimated(imu, step, mean=key.endswith('m'))
-        filt, _ = build({**settings, 'use_mag': use_mag} if not use_mag else settings)
-        r = run_batch(filt, t, gyr, acc, mag if use_mag else None)
+        filt, adapter = build({**settings, 'use_mag': use_mag} if not use_mag else settings)
+        quat, answered = run_9d(filt, adapter, t, gyr, acc, mag if use_mag else None)
         # Scored at every reference sample, estimate interpolated (decimated runs) as `ccf eval` does.
-        q = align(t[r.answered], r.quat[r.answered], t_ref, q_ref)
+        q = align(t[answered], quat[answered], t_ref, q_ref)
         s = summarize(q, q_ref, mask)
-        nan_out = int((~np.isfinite(r.quat).all(axis=1)).sum())
+        nan_out = int((~np.isfinite(quat).all(axis=1)).sum())
         fitted = float('nan') if use_mag else fitted_total_rmse_deg(q, q_ref, mask)
         out[key] = (s.total_rmse_deg, s.heading_rmse_deg, s.inclination_rmse_deg, nan_out, fitted)
     return trial.name, out

@@ -31,7 +31,7 @@ import argparse
 from typing import Any
 
 import numpy as np
-from _trials import map_trials
+from _trials import map_trials, run_9d
 
 from ccf_ros.core import run_batch
 from ccf_ros.core.metrics import error_angles, fit_heading_offset, fitted_total_rmse_deg, summarize
@@ -131,15 +131,15 @@ def _mag_env_figures(name: str, d: Any, q9: np.ndarray | None, q6: np.ndarray | 
 def run_mag_env(args: tuple[str, float, int, dict[str, str]]) -> tuple[str, float, tuple[float, float, float]]:
     name, rate, seed, settings = args
     d = mag_env_data(name, rate, seed)
-    f9, _ = build(settings)
+    f9, a9 = build(settings)
     f6, _ = build({**settings, 'use_mag': 'false'})
-    q9 = run_batch(f9, d.t_s, d.gyr, d.acc, d.mag).quat if name != 'planar swing' else None
+    q9 = run_9d(f9, a9, d.t_s, d.gyr, d.acc, d.mag)[0] if name != 'planar swing' else None
     q6 = run_batch(f6, d.t_s, d.gyr, d.acc, None).quat if name in ('dipole', 'planar swing') else None
     clean = clean_q9 = None
     if name in ('new building', 'start at magnet'):
         clean = mag_env_data(name, rate, seed, clean=True)
-        f9c, _ = build(settings)
-        clean_q9 = run_batch(f9c, clean.t_s, clean.gyr, clean.acc, clean.mag).quat
+        f9c, a9c = build(settings)
+        clean_q9 = run_9d(f9c, a9c, clean.t_s, clean.gyr, clean.acc, clean.mag)[0]
     return name, rate, _mag_env_figures(name, d, q9, q6, clean_q9, clean)
 
 
@@ -204,8 +204,8 @@ def run_vqf(args: tuple[str, int]) -> tuple[str, tuple[float, float, float]]:
 def run(args: tuple[str, int, dict[str, str]]) -> tuple[str, tuple[float, float, float]]:
     name, seed, settings = args
     d = _data(name, seed)
-    f9, _ = build(settings)
-    q9 = run_batch(f9, d.t_s, d.gyr, d.acc, d.mag).quat
+    f9, a9 = build(settings)
+    q9 = run_9d(f9, a9, d.t_s, d.gyr, d.acc, d.mag)[0]
     s9 = summarize(q9, d.q_true, d.moving)
     f6, _ = build({**settings, 'use_mag': 'false'})
     q6 = run_batch(f6, d.t_s, d.gyr, d.acc, None).quat

@@ -139,7 +139,9 @@ def test_flag_vocabulary_is_documented():
         assert f'`{flag}`' in doc, flag
 
 
-BROAD_MAGNET = ('30_disturbed_stationary_magnet_C', '33_disturbed_attached_magnet_2cm')
+# (27: a phone carried with the sensor; the online hard iron, on by default, applies its offset mid-bag, and the
+# paired field's norm steps there: its spread over the bag passes mag_norm_cv's 6 %.)
+BROAD_MAGNET = ('27_disturbed_phone_vibration_B', '30_disturbed_stationary_magnet_C', '33_disturbed_attached_magnet_2cm')
 
 
 def test_broad_trials_raise_no_fault_flag(tmp_path):

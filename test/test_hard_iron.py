@@ -14,11 +14,12 @@ from ccf_ros.core.metrics import summarize
 from ccf_ros.engine import ImuEngine
 from ccf_ros.errors import ParameterError
 from ccf_ros.offline.evaluate import engine_orientations
-from ccf_ros.offline.simulate import SimData, dipole_field, generate, with_mag_distortion
+from ccf_ros.offline.simulate import SimData, dipole_field, generate, wander_path, with_mag_distortion
 from ccf_ros.settings import build
 
 OFFSET_T = np.array([30.0, -12.0, 8.0]) * 1e-6
 ON = {'mag_online_calibration': True}
+OFF = {'mag_online_calibration': False}
 
 
 def run(settings: dict, t, gyr, acc, mag, probe_s: float | None = None, engine: ImuEngine | None = None):
@@ -58,14 +59,14 @@ def test_a_body_fixed_offset_is_found_applied_and_the_heading_recovers(hand, mon
     q_on, eng, probe = run({}, dist.t_s, dist.gyr, dist.acc, dist.mag, probe_s=65.0, engine=ImuEngine(filt, adapter))
     # After 60 s of motion (the first 5 s are rest).
     assert probe.status == 'applied'
-    assert np.linalg.norm(np.array(probe.offset) - OFFSET_T) < 0.13e-6  # measured 0.108 uT
-    assert max(probe.sigma) < 0.12e-6  # measured 0.099 uT
-    assert probe.residual_rel < 0.018  # measured 1.45 % of the field: the noise
+    assert np.linalg.norm(np.array(probe.offset) - OFFSET_T) < 0.33e-6  # measured 0.228 uT (0.27 with a decision every 5 pairs)
+    assert max(probe.sigma) < 0.17e-6  # measured 0.136 uT
+    assert probe.residual_rel < 0.017  # measured 1.42 % of the field: the noise
     assert calls  # the filter was told each time the applied offset moved
     after = hand.moving & (hand.t_s - hand.t_s[0] >= 65.0)
-    q_clean, _, _ = run({}, hand.t_s, hand.gyr, hand.acc, hand.mag)
-    assert heading(q_on, hand, after) < 1.12 * heading(q_clean, hand, after)  # measured 0.469 vs 0.506 deg
-    q_off, _, _ = run({}, dist.t_s, dist.gyr, dist.acc, dist.mag)
+    q_clean, _, _ = run(OFF, hand.t_s, hand.gyr, hand.acc, hand.mag)
+    assert heading(q_on, hand, after) < 1.12 * heading(q_clean, hand, after)  # measured 0.501 vs 0.506 deg
+    q_off, _, _ = run(OFF, dist.t_s, dist.gyr, dist.acc, dist.mag)
     assert heading(q_off, hand, after) > 40.0  # measured 52 deg without it
     # The engine reports it; the sample given to the filter has the offset subtracted.
     s = eng.hard_iron_status()
@@ -78,7 +79,7 @@ def test_a_world_fixed_dipole_is_not_followed(hand):
     s = eng.hard_iron_status()
     assert s.offset == (0.0, 0.0, 0.0) and s.status == 'tracking'
     assert s.residual_rel > 0.05  # measured 6.85 %: the body-fixed model does not hold
-    q_off, _, _ = run({}, d.t_s, d.gyr, d.acc, d.mag)
+    q_off, _, _ = run(OFF, d.t_s, d.gyr, d.acc, d.mag)
     np.testing.assert_array_equal(q_on, q_off)
 
 
@@ -93,8 +94,10 @@ def test_an_offset_that_goes_away_is_dropped():
     assert s.status == 'applied' and np.linalg.norm(s.offset) < 1e-6, s
 
 
-def test_off_by_default_and_the_state_survives_a_restart(hand):
+def test_on_by_default_and_the_state_survives_a_restart(hand):
     eng = ImuEngine(*build({}))
+    assert eng.hard_iron is not None and eng.hard_iron_status().status == 'not_determined'
+    eng = ImuEngine(*build(OFF))
     assert eng.hard_iron is None and eng.hard_iron_status() is None and eng.hard_iron_state() is None
     dist = with_mag_distortion(hand, OFFSET_T)
     _, first, _ = run(ON, dist.t_s, dist.gyr, dist.acc, dist.mag)
@@ -115,7 +118,7 @@ def test_off_by_default_and_the_state_survives_a_restart(hand):
         fresh.restore_hard_iron(dict(state, status='sure'))
     assert fresh.hard_iron_status().offset == s0.offset  # unchanged by the bad states
     # Turning it off drops it; on again starts from nothing.
-    fresh.set_settings(build({})[1])
+    fresh.set_settings(build(OFF)[1])
     assert fresh.hard_iron is None
     fresh.set_settings(build(ON)[1])
     assert fresh.hard_iron_status().status == 'not_determined'
@@ -144,7 +147,7 @@ def test_broad_30_is_not_worse_and_33_is_better():
         t_ref, q_ref = read_orientations(trial, '/ground_truth/pose')
         mask = mask_at(t_ref, *read_bools(trial, '/ground_truth/moving'))
         out = []
-        for settings in ({}, ON):
+        for settings in (OFF, ON):
             q, eng, _ = run(settings, imu.t_s, imu.gyr, imu.acc, imu.mag)
             ok = np.all(np.isfinite(q), axis=1)
             out.append(summarize(align(imu.t_s[ok], q[ok], t_ref, q_ref), q_ref, mask).heading_rmse_deg)
@@ -153,7 +156,7 @@ def test_broad_30_is_not_worse_and_33_is_better():
     (off30, on30), s30 = headings(need_shared(SHARED / '30_disturbed_stationary_magnet_C'))
     assert on30 <= off30 * 1.001 and s30.offset == (0.0, 0.0, 0.0)  # measured 1.221 both: never applied
     (off33, on33), _ = headings(need_shared(SHARED / '33_disturbed_attached_magnet_2cm'))
-    assert on33 < 0.56 * off33  # measured 1.172 vs 2.524 deg (0.46x)
+    assert on33 < 0.75 * off33  # measured 1.629 vs 2.524 deg (0.65x)
 
 
 def test_the_node_diagnostics_show_the_hard_iron_status(hand):
@@ -164,7 +167,7 @@ def test_the_node_diagnostics_show_the_hard_iron_status(hand):
     from ccf_ros.node.sync import HoldStats
 
     hold = HoldStats(0, 0, 0.0, 0.0, False)
-    off = diagnostics(time.monotonic(), InputStats(), ImuEngine(*build({})), hold, use_mag=True, mag_timeout_s=0.5)
+    off = diagnostics(time.monotonic(), InputStats(), ImuEngine(*build(OFF)), hold, use_mag=True, mag_timeout_s=0.5)
     assert off.values['online hard iron'] == 'off'
     dist = with_mag_distortion(hand, OFFSET_T)
     _, eng, _ = run(ON, dist.t_s[:9000], dist.gyr[:9000], dist.acc[:9000], dist.mag[:9000])
@@ -192,7 +195,8 @@ def test_ccf_replay_runs_the_online_estimate(tmp_path, capsys):
         late = s.t_s - s.t_s[0] >= 100.0  # the heading has converged after the offset was applied
         return summarize(s.q_est[late], s.q_ref[late], s.mask[late]).heading_rmse_deg
 
-    ref, off, on = heading(clean), heading(bag), heading(bag, '--param', 'mag_online_calibration=true')
+    ref, on = heading(clean), heading(bag)  # (on by default)
+    off = heading(bag, '--param', 'mag_online_calibration=false')
     assert off > 40.0 and on < 1.3 * ref, (ref, off, on)  # measured 0.507, 53.4, 0.553 deg (1.09x)
 
 
@@ -208,3 +212,99 @@ def test_a_corrupted_gyro_sample_does_not_break_the_online_estimator(hand, bad):
     # The bad sample is skipped by the filter and not integrated by the estimator: the rest is answered as without it.
     err = np.degrees(2 * np.arccos(np.clip(np.abs(np.sum(q[1:] * q_clean[1:], axis=1)), 0, 1)))
     assert err.max() < 1.0, err.max()
+
+
+def _max_applied(settings: dict, d: SimData) -> tuple[float, ImuEngine]:
+    """The largest applied offset's norm over a run (checked every 20 samples), T, and the engine."""
+    worst = [0.0]
+    eng = ImuEngine(*build(settings))
+
+    def look(k: int, _t: float) -> None:
+        if k % 20 == 0:
+            worst[0] = max(worst[0], float(np.linalg.norm(eng.hard_iron_status().offset)))
+
+    engine_orientations(eng, d.t_s, d.gyr, d.acc, d.mag, look)
+    return worst[0], eng
+
+
+def test_a_magnet_passed_closely_is_never_applied():
+    """Carried to and fro over 2 m past a magnet 0.15 m beside the path (no offset): the field changes by tens of uT
+    with position, not with the turns (the residual test; an estimator that paired every 0.5 s of turning once
+    applied 3.3-4.4 uT here)."""
+    def passing(t):
+        x = -np.cos(2 * np.pi * np.clip(t - 5.0, 0.0, None) / 40.0)
+        return np.stack((x, 0 * x, 0 * x), axis=1)
+
+    d = generate(180.0, 100.0, 2, field=dipole_field([0.0, 0.15, 0.0], [3.0, 0.0, 0.0]), path_m=passing)
+    worst, eng = _max_applied(ON, d)
+    assert worst == 0.0 and eng.hard_iron_status().status != 'applied'
+
+
+def test_steel_near_the_workspace_is_never_applied():
+    """simulated_accuracy.py's dipole scenario (300 A m² 1.2 m away, hand-guided over ±0.35 m, no offset; seed 1):
+    without the level test (the field's norm and vertical component with the offset subtracted must stay within 5 %)
+    and the explained-share rule it applies 10 uT."""
+    rng = np.random.default_rng(1001)
+    ang = rng.uniform(0.0, 2.0 * np.pi)
+    center = 1.2 * np.array([np.cos(ang), np.sin(ang), rng.uniform(-0.3, 0.3)])
+    moment = 300.0 * rng.choice([-1.0, 1.0]) * np.array([-np.sin(ang), np.cos(ang), 0.0])
+    d = generate(90.0, 100.0, 1, translation_m=0.1, field=dipole_field(center, moment), path_m=wander_path(0.35, rng))
+    worst, _ = _max_applied(ON, d)
+    assert worst == 0.0
+
+
+def test_an_offset_that_appears_mid_run_is_applied():
+    d = generate(180.0, 100.0, 0)
+    mag = d.mag + np.where((d.t_s - d.t_s[0] >= 60.0)[:, None], OFFSET_T, 0.0)
+    _, eng, probe = run(ON, d.t_s, d.gyr, d.acc, mag, probe_s=59.0)
+    assert probe.offset == (0.0, 0.0, 0.0)
+    s = eng.hard_iron_status()
+    assert s.status == 'applied' and np.linalg.norm(np.array(s.offset) - OFFSET_T) < 0.6e-6, s  # measured 0.3 uT
+
+
+def test_pairs_come_from_the_filter_orientation_every_tenth_of_a_second(hand, monkeypatch):
+    """No second gyro integration: a pair is formed every 0.1 s from the filter's orientation at the kept sample's
+    stamp (the message after it, before the filter's update); a filter restart starts a new epoch."""
+    calls = []
+    original = HardIronEstimator.pair
+
+    def spy(self, q, epoch=None, count=0):
+        calls.append((self.pending[0], q, epoch, count))
+        original(self, q, epoch, count)
+
+    monkeypatch.setattr(HardIronEstimator, 'pair', spy)
+    eng = ImuEngine(*build(ON))
+    seen = {}
+
+    def look(k: int, t_k: float) -> None:
+        seen[t_k] = eng.filter.quaternion
+
+    engine_orientations(eng, hand.t_s, hand.gyr, hand.acc, hand.mag, look)
+    duration = float(hand.t_s[-1] - hand.t_s[0])
+    assert abs(len(calls) - duration / 0.1) <= 2
+    # The orientation paired with each sample is the filter's right after that sample.
+    assert all(q == seen[t] for t, q, _, _ in calls[1:])
+    assert len({e for _, _, e, _ in calls[1:]}) == 1
+    eng.reset()
+    eng.on_mag(float(hand.t_s[-1]) + 0.01, tuple(hand.mag[0]))
+    eng.on_imu(float(hand.t_s[-1]) + 0.01, tuple(hand.gyr[0]), tuple(hand.acc[0]))
+    eng.on_imu(float(hand.t_s[-1]) + 0.02, tuple(hand.gyr[0]), tuple(hand.acc[0]))
+    assert calls[-1][3] < calls[-2][3]  # the reset's count starts again: stored samples are forgotten
+    assert not eng.hard_iron._history or len(eng.hard_iron._history) == 1
+
+
+@pytest.mark.parametrize(('explained', 'pairs', 'applied'), [(0.2, 60.0, False), (0.6, 60.0, True), (0.2, 200.0, True)])
+def test_a_first_offset_must_explain_the_pairs_or_have_many_behind_it(monkeypatch, explained, pairs, applied):
+    """A spurious estimate (a field varying with position, correlated with the turns for a while) explains little of
+    the pairs' variation: a first offset needs half of it explained, or FIRST_MIN_PAIRS (150) pairs behind it."""
+    from ccf_ros.core import hard_iron
+
+    monkeypatch.setattr(hard_iron._Fit, 'solve', lambda self: None)
+    est = HardIronEstimator()
+    for f in (est._long, est._short):
+        f.estimate, f.norm, f.sigma = np.array([5e-6, 0.0, 0.0]), 50e-6, np.full(3, 0.2e-6)
+        f.determined, f.residual_rel, f.level_spread = True, 0.02, 0.02
+        f.explained, f.n = explained, pairs
+    est._decide()
+    assert (est.status().status == 'applied') == applied
+    assert (est.offset is not None) == applied
