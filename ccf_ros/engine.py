@@ -351,7 +351,7 @@ class ImuEngine:
         f = self.filter
         ans = ChunkAnswers([], [], [], [], None, None, [] if observe else None, [] if observe else None)
         rows = zip(is_imu, t_s, *v1, *v2, strict=True)
-        if (self._reframe is not None or self.hard_iron is not None or self._stateless or self._constant_dt > 0.0
+        if (self._reframe is not None or self._stateless or self._constant_dt > 0.0
                 or self._remove_g or self._corrected_rate or self._hint_until != math.inf
                 or self._pending_heading is not None):
             self._chunk_general(rows, ans, answers)
@@ -368,6 +368,7 @@ class ImuEngine:
         tol, timeout = pairer.tolerance_s, pairer.timeout_s
         t_in_use, field = pairer._t_in_use, pairer._field_in_use
         mag_cal = self._mag_cal
+        hi = self.hard_iron
         update = f.update
         sd = self._stddev
         var_fixed = (sd * sd,) * 3 if sd > 0.0 else None
@@ -427,6 +428,16 @@ class ImuEngine:
                     if tm >= t_in_use:
                         t_in_use, field = tm, m
             mag = None if field is None or t - t_in_use > timeout else field
+            if hi is not None:
+                # on_imu's online hard iron, written out the same way (pair, keep when due, subtract the offset)
+                if hi.pending is not None:
+                    self._online_hard_iron()
+                if mag is not None:
+                    if t >= hi.t_next or t < hi.t_next - 1.0:
+                        hi.pending = (t, mag) if hi.due(t) else None
+                    o = hi.offset
+                    if o is not None:
+                        mag = (mag[0] - o[0], mag[1] - o[1], mag[2] - o[2])
             status = update(t, (x1, y1, z1), (x2, y2, z2), mag)
             if mags is not None and rejected is not None:
                 mags.extend(mag or nan3)

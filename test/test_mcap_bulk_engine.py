@@ -14,13 +14,17 @@ from ccf_ros.offline.simulate import generate
 from ccf_ros.settings import build
 
 
-def _stream() -> tuple[list[bool], list[float], np.ndarray, np.ndarray]:
+def _stream(mag_offset_t: tuple[float, float, float] | None = None, duration_s: float = 30.0,
+            ) -> tuple[list[bool], list[float], np.ndarray, np.ndarray]:
     """Interleaved magnetometer and IMU messages (mag first, each with its IMU sample's stamp) of 30 s at 100 Hz,
     with faults: no usable accelerometer at the start, a repeated and a slightly backward stamp, a NaN gyro and a
-    NaN stamp, a lone stamp 5 s ahead, a real 3 s gap, and the clock jumping back 20 s (a restart)."""
-    d = generate(30.0, 100.0, seed=3)
+    NaN stamp, a lone stamp 5 s ahead, a real 3 s gap, and the clock jumping back 20 s (a restart).
+    ``mag_offset_t``: a magnetometer offset carried by the body, T (for the online hard iron to find)."""
+    d = generate(duration_s, 100.0, seed=3)
     t = d.t_s.copy()
     gyr, acc, mag = d.gyr.copy(), d.acc.copy(), d.mag.copy()
+    if mag_offset_t is not None:
+        mag += np.asarray(mag_offset_t)
     acc[:5] = 0.0  # no orientation yet: no answers
     t[300] = t[299]  # repeated
     t[400] = t[399] - 0.002  # slightly backward
@@ -41,7 +45,8 @@ def _stream() -> tuple[list[bool], list[float], np.ndarray, np.ndarray]:
 def _state(e: ImuEngine) -> tuple:
     f = e.filter
     return (e.n_in, e.n_out, e.counts(), e.n_answered_stale, e.stale_share, e.n_resets_jump, e.clock_s, e.paired_mag,
-            e._t_last, e._t_ahead, e._n_far_back, f.quaternion, f.gyro_bias, f.orientation_variance, f.initialized)
+            e._t_last, e._t_ahead, e._n_far_back, f.quaternion, f.gyro_bias, f.orientation_variance, f.initialized,
+            e.hard_iron_state())
 
 
 @pytest.mark.parametrize('settings', [
@@ -52,9 +57,18 @@ def _state(e: ImuEngine) -> tuple:
     {'bias_corrected_rate': True, 'remove_gravity_vector': True},
     {'constant_dt': 0.01},
     {'use_mag': False},
+    {'mag_online_calibration': False},
 ])
 def test_on_chunk_answers_and_state_equal_message_by_message(settings):
     _compare(settings, True)
+
+
+@pytest.mark.parametrize('answers', [True, False])
+def test_on_chunk_with_an_offset_the_online_hard_iron_applies(answers):
+    """The default online hard iron inside the bulk loop: a (30, -12, 8) µT offset carried by the body is found and
+    subtracted mid-stream (its pairing, the applied offset's jump, the filter told), to the bit as message by
+    message."""
+    _compare({}, answers, _stream((30e-6, -12e-6, 8e-6), duration_s=60.0))
 
 
 @pytest.mark.parametrize('settings', [{}, {'mag_bias_x': 1e-6}, {'remove_gravity_vector': True}])
@@ -64,8 +78,8 @@ def test_on_chunk_without_answers_leaves_the_same_state(settings):
     _compare(settings, False)
 
 
-def _compare(settings: dict, answers: bool) -> None:
-    is_imu, stamps, v1, v2 = _stream()
+def _compare(settings: dict, answers: bool, stream: tuple | None = None) -> None:
+    is_imu, stamps, v1, v2 = stream if stream is not None else _stream()
     one, bulk = (ImuEngine(*build(settings)) for _ in range(2))
     rng = np.random.default_rng(0)
     cuts = np.unique(np.r_[0, rng.integers(1, len(stamps), 12), len(stamps)])
@@ -109,6 +123,9 @@ def _compare(settings: dict, answers: bool) -> None:
         n_answers += m
     # The stream reached every rare path and the answers were many.
     assert one.n_resets_jump == 1 and n_answers > 2800
+    if stream is not None:
+        # The offset was found and applied (within 2 µT) before the end.
+        assert np.allclose(one.hard_iron_status().offset, (30e-6, -12e-6, 8e-6), atol=2e-6), one.hard_iron_status()
     skipped = one.skipped_by_reason()
     assert skipped.get('skipped_bad_gyro', 0) == 1, skipped
     if 'constant_dt' not in settings:  # (its clock replaces the stamps the filter sees)
