@@ -8,6 +8,7 @@ from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.qos_overriding_options import InvalidQosOverridesError
 
+from .executor import LeanExecutor
 from .lifecycle import CcfLifecycleNode
 from .node import CcfNode
 
@@ -24,10 +25,13 @@ def main(args: list[str] | None = None, profile: str = 'ccf_node', lifecycle: bo
     """Entry point of ``ccf_node`` / ``ros2 run ccf_ros ccf_node`` (and, with ``profile``, of the drop-ins; with
     ``lifecycle``, of ``ccf_lifecycle_node``)."""
     node: CcfNode | None = None
+    executor: LeanExecutor | None = None
     try:
         rclpy.init(args=args)
+        executor = LeanExecutor()
         node = CcfLifecycleNode(profile) if lifecycle else CcfNode(profile)
-        rclpy.spin(node)
+        executor.add_node(node)
+        executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception as err:
@@ -38,6 +42,8 @@ def main(args: list[str] | None = None, profile: str = 'ccf_node', lifecycle: bo
         print(f'{profile}: error: {err}', flush=True)
         raise SystemExit(2) from None
     finally:
+        if executor is not None:
+            executor.shutdown()  # (releases the handles it holds)
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
