@@ -33,6 +33,7 @@ Usage: python benchmarks/node_bench.py [--chunks 20] [--throughput-rounds 3] [--
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import random
 import signal
@@ -119,10 +120,8 @@ def cpu_s(pid: int) -> float:
     threads live as long as the process.)"""
     total = 0
     for task in os.scandir(f'/proc/{pid}/task'):
-        try:
+        with contextlib.suppress(FileNotFoundError, ProcessLookupError):  # (the thread ended since the listing)
             total += int(Path(task.path, 'schedstat').read_bytes().split(None, 1)[0])
-        except (FileNotFoundError, ProcessLookupError):
-            pass  # the thread ended since the listing
     return total * 1e-9
 
 

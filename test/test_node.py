@@ -39,8 +39,8 @@ IMU, MAG = '/imu/data_raw', '/imu/mag'
 class Harness:
     """A feeder/recorder node and the node under test on one executor."""
 
-    def __init__(self, ctx, node, ns=''):
-        self.ex = SingleThreadedExecutor(context=ctx)
+    def __init__(self, ctx, node, ns='', executor=None):
+        self.ex = executor or SingleThreadedExecutor(context=ctx)
         self.node = node
         self.io = rclpy.create_node('feeder', context=ctx, namespace=ns)
         self.pub_imu = self.io.create_publisher(Imu, 'imu/data_raw', RELIABLE)
@@ -607,10 +607,10 @@ def test_an_error_while_running_is_a_traceback_not_a_startup_parameter_error(mon
     bug and propagates with its traceback."""
     import ccf_ros.node.entry as node_module
 
-    def spin(_node):
+    def spin_once(_executor, _timeout_sec=None):
         raise ValueError('injected error while running')
 
-    monkeypatch.setattr(node_module.rclpy, 'spin', spin)
+    monkeypatch.setattr(node_module.LeanExecutor, 'spin_once', spin_once)
     with pytest.raises(ValueError, match='injected error while running'):
         node_module.main([])
 

@@ -18,7 +18,7 @@ from contextlib import ExitStack
 from typing import Any
 
 from rclpy.exceptions import InvalidHandle
-from rclpy.executors import Executor, ExternalShutdownException
+from rclpy.executors import Executor, ExternalShutdownException, TimeoutObject
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.subscription import Subscription
 from rclpy.task import Task
@@ -53,7 +53,7 @@ class _WaitSet:
         self.guards = [(g.handle, g.handle.pointer, g) for g in guards if self._enter(g.handle)]
         own = [g.handle for g in (executor._guard, executor._sigint_gc) if self._enter(g.handle)]
         self.waitables = [w for w in waitables if self._enter(w)]
-        self.stack.enter_context(executor.context.handle)
+        self.stack.enter_context(executor.context.handle)  # type: ignore[arg-type]
         n = NumberOfEntities(len(self.subs), len(self.guards) + len(own), len(self.timers), len(self.clients),
                              len(self.services))
         for w in self.waitables:
@@ -85,6 +85,9 @@ class LeanExecutor(Executor):
 
     #: Longest single wait, s: the loop looks at the context at least this often, whatever woke it or not.
     MAX_WAIT_S = 1.0
+    #: (rclpy's ``Executor.__del__`` reads it: set here for an executor whose ``__init__`` failed before setting it,
+    #: e.g. made just as a signal shut the context down)
+    _sigint_gc: Any = None
 
     def __init__(self, *, context: Any = None) -> None:
         super().__init__(context=context)
@@ -114,6 +117,11 @@ class LeanExecutor(Executor):
         """Run callbacks until the context is shut down (a signal) or :meth:`shutdown`."""
         while self._context.ok() and not self._is_shutdown:
             self.spin_once(self.MAX_WAIT_S)
+
+    def spin_once_until_future_complete(self, future: Any, timeout_sec: float | TimeoutObject | None = None) -> None:
+        """:meth:`spin_once`, woken when ``future`` is done (for ``spin_until_future_complete``)."""
+        future.add_done_callback(lambda _f: self._guard.trigger() if self._guard else None)
+        self.spin_once(timeout_sec.timeout if isinstance(timeout_sec, TimeoutObject) else timeout_sec)
 
     def spin_once(self, timeout_sec: float | None = None) -> None:
         """Wait up to ``timeout_sec`` (None: no limit) and run every callback that is ready."""
@@ -157,52 +165,65 @@ class LeanExecutor(Executor):
 
     def _dispatch(self, c: _WaitSet, ws: Any) -> None:
         """Run the ready callbacks; stop when one of them made or destroyed an entity (the rest stay ready)."""
+        if c.waitables and self._waitables(c, ws):
+            return
+        if c.timers and self._timers(c, ws):
+            return
+        if c.subs and self._subscriptions(c, ws):
+            return
+        if c.guards or c.clients or c.services:
+            self._guards_clients_services(c, ws)
+
+    def _waitables(self, c: _WaitSet, ws: Any) -> bool:
         for w in c.waitables:
             if w.is_ready(ws):
                 self._run(w.execute(w.take_data()))
                 if self._stale:
+                    return True
+        return False
+
+    def _timers(self, c: _WaitSet, ws: Any) -> bool:
+        ready = ws.get_ready_entities('timer')
+        for h, ptr, tmr in c.timers:
+            if ptr in ready and h.is_timer_ready():
+                h.call_timer()
+                self._run(tmr.callback())
+                if self._stale:
+                    return True
+        return False
+
+    def _subscriptions(self, c: _WaitSet, ws: Any) -> bool:
+        ready = ws.get_ready_entities('subscription')
+        for h, ptr, callback, msg_type, raw, msg_only in c.subs:
+            if ptr in ready:
+                taken = h.take_message(msg_type, raw)
+                if taken is not None:
+                    self._run(callback(taken[0]) if msg_only else callback(*taken))
+                    if self._stale:
+                        return True
+        return False
+
+    def _guards_clients_services(self, c: _WaitSet, ws: Any) -> None:
+        ready = ws.get_ready_entities('guard_condition') if c.guards else ()
+        for _, ptr, gc in c.guards:
+            if ptr in ready and gc.callback is not None:
+                self._run(gc.callback())
+                if self._stale:
                     return
-        if c.timers:
-            ready = ws.get_ready_entities('timer')
-            for h, ptr, tmr in c.timers:
-                if ptr in ready and h.is_timer_ready():
-                    h.call_timer()
-                    self._run(tmr.callback())
-                    if self._stale:
-                        return
-        if c.subs:
-            ready = ws.get_ready_entities('subscription')
-            for h, ptr, callback, msg_type, raw, msg_only in c.subs:
-                if ptr in ready:
-                    taken = h.take_message(msg_type, raw)
-                    if taken is not None:
-                        self._run(callback(taken[0]) if msg_only else callback(*taken))
-                        if self._stale:
-                            return
-        if c.guards:
-            ready = ws.get_ready_entities('guard_condition')
-            for _, ptr, gc in c.guards:
-                if ptr in ready and gc.callback is not None:
-                    self._run(gc.callback())
-                    if self._stale:
-                        return
-        if c.clients:
-            ready = ws.get_ready_entities('client')
-            for _, ptr, client in c.clients:
-                if ptr in ready:
-                    execute = self._take_client(client)
-                    if execute is not None:
-                        self._run(execute())
-        if c.services:
-            ready = ws.get_ready_entities('service')
-            for h, ptr, srv in c.services:
-                if ptr in ready:
-                    request, header = h.service_take_request(srv.srv_type.Request)
-                    if header is not None:
-                        response = self._await(srv.callback(request, srv.srv_type.Response()))
-                        srv.send_response(response, header)
-                    if self._stale:
-                        return
+        ready = ws.get_ready_entities('client') if c.clients else ()
+        for _, ptr, client in c.clients:
+            if ptr in ready:
+                execute = self._take_client(client)
+                if execute is not None:
+                    self._run(execute())
+        ready = ws.get_ready_entities('service')
+        for h, ptr, srv in c.services:
+            if ptr in ready:
+                request, header = h.service_take_request(srv.srv_type.Request)
+                if header is not None:
+                    srv.send_response(self._await(srv.callback(request, srv.srv_type.Response())), header)
+                if self._stale:
+                    return
 
     def _run(self, result: Any) -> None:
         """A callback's result: a coroutine (an async callback) runs until it waits, then as a Task."""
