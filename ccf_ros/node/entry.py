@@ -78,8 +78,11 @@ def main(args: list[str] | None = None, profile: str = 'ccf_node', lifecycle: bo
         except (KeyboardInterrupt, ExternalShutdownException):
             pass
         except Exception as err:
-            if stop.received is not None:
-                pass  # a signal during start-up: rclpy shut the context down under the node being made
+            if stop.received is not None or (isinstance(err, RCLError) and not rclpy.ok()):
+                # A signal: rclpy's signal thread shuts the context down concurrently, and whatever rclpy did on it
+                # at that moment (making the node, building a wait set) raised RCLError ('the given context is not
+                # valid'); the same clean exit. An RCLError while the context is valid is a bug (below).
+                pass
             elif node is not None or not _is_startup_error(err):
                 # Only what the start-up raised is the user's parameters; an error while running is a bug.
                 raise
