@@ -372,12 +372,14 @@ def cpu_per_message(chunks: int, rates: tuple[float, ...] = (200.0, 400.0, 1000.
         rig = Rig(cmds)
         cpu: dict[str, list[float]] = {k: [] for k in labels}  # us per answered message, per chunk
         lost: dict[str, int] = dict.fromkeys(labels, 0)
+        answered: dict[str, list[str]] = {k: [] for k in labels}
         try:
             for r in range(chunks):
                 for label in order(labels, r):
                     sent, cpu_used = rig.send(label, rate, chunk_s, 1, settle_s=0.3)
                     n_answered = len(rig.answered(label, sent))
                     lost[label] += len(sent) - n_answered
+                    answered[label].append(f'{n_answered}/{len(sent)}')
                     # Per answered message: a node that falls behind drops messages at its queue, unprocessed.
                     cpu[label].append(cpu_used / max(n_answered, 1) * 1e6)
         finally:
@@ -390,6 +392,8 @@ def cpu_per_message(chunks: int, rates: tuple[float, ...] = (200.0, 400.0, 1000.
         ours = ours_ns / 1e3 / max(n_imu, 1)
         per = {k: float(np.median(v)) for k, v in cpu.items()}
         rows.append((rate, per, ratio, aa, ours))
+        print(f'  {rate:6.0f} Hz per round: ratio {" ".join(f"{x:.2f}" for x in ratio)}; A/A '
+              f'{" ".join(f"{x:.2f}" for x in aa)}; answered/sent {answered}', flush=True)
         print(f'  {rate:6.0f} Hz: median us/message ccf_node {per["ccf_node"]:.1f}, pass-through '
               f'{per["pass-through"]:.1f}, pass-through 2 {per["pass-through 2"]:.1f}; ratio {_spread(ratio)}; '
               f'A/A {_spread(aa)}; our code {ours:.1f} us/message = {100 * ours / per["ccf_node"]:.0f} % of '
