@@ -78,6 +78,8 @@ def test_lean_executor_follows_entities_made_and_destroyed_by_a_lifecycle_node(c
         assert m.transition(Transition.TRANSITION_CONFIGURE) and m.transition(Transition.TRANSITION_ACTIVATE)
         assert m.state() == ACTIVE
         h.wait_connected()
+        n_diag = len(h.diag)  # the timer, made in the activate service's callback, runs (diagnostics at 1 Hz)
+        assert h.spin_until(lambda: len(h.diag) >= n_diag + 2, 10.0)
         h.feed(inputs[:400], 200)
         assert len(h.out) == 200
         assert m.transition(Transition.TRANSITION_DEACTIVATE) and m.state() == INACTIVE
