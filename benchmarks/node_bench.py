@@ -17,18 +17,23 @@ see the same machine load, which on a shared machine changes by the second).
    node must not hold IMU samples for it. Target: p50 and p99 within 1.5 x (+0.5 ms) of the full-rate run.
 4. With ``--broad`` (and the shared data present): a BROAD trial at 286 Hz through ccf_node vs the offline engine.
 
-5. With ``--cpu``, instead of 1-4: CPU time per message of both nodes at 200, 400 and 1000 Hz (magnetometer in
-   lock-step), in 2 s chunks alternating between the nodes, and ccf_node's own code's share of its CPU time per
-   message (``node_share.py``: thread CPU time of the node's per-message code, rclpy's publish excluded). Targets:
-   ccf_node <= 0.8 x pass-through per message, our code <= 25 % of ccf_node's.
+5. With ``--cpu``, instead of 1-4: CPU time per message of ccf_node and of two identical pass-through nodes at
+   200, 400 and 1000 Hz (magnetometer in lock-step), CPU from the scheduler's nanosecond counts
+   (``/proc/PID/task/*/schedstat``), in rounds of 2 s chunks (pass-through, ccf_node, pass-through 2, then reversed);
+   per round ccf_node / the mean of the two pass-throughs and the A/A ratio pass-through 2 / pass-through (the
+   measurement's own resolution), printed as median, IQR and min-max over the rounds; and ccf_node's own code's
+   share of its CPU time per message (``node_share.py``: thread CPU time of the node's per-message code, rclpy's
+   publish excluded). Targets: ccf_node <= 0.8 x pass-through per message, our code <= 25 % of ccf_node's.
 
-Usage: python benchmarks/node_bench.py [--chunks 20] [--throughput-rounds 3] [--broad] [--node-cmd CMD] [--cpu]
+Usage: python benchmarks/node_bench.py [--chunks 20] [--throughput-rounds 3] [--broad] [--node-cmd CMD]
+       [--cpu [--rates 200,400,1000] [--chunk-s 2]]
 (sets ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; uses ROS_DOMAIN_ID if set, else a random domain of its own)
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import random
 import signal
@@ -60,7 +65,7 @@ BROAD = HERE.parents[1] / 'shared' / 'data' / 'broad' / '07_undisturbed_fast_rot
 DEFAULTS = all_defaults()
 QOS_IN = (str(DEFAULTS['qos_reliability']), int(DEFAULTS['qos_depth']))
 _STAMP = struct.Struct('<iI')  # header stamp right after the 4-byte CDR encapsulation header
-NAMESPACES = {'pass-through': 'pt', 'ccf_node': 'ccf'}
+NAMESPACES = {'pass-through': 'pt', 'ccf_node': 'ccf', 'pass-through 2': 'pt2'}
 
 
 def recorder(conn, namespaces: list[str]) -> None:
@@ -109,9 +114,15 @@ def recorder(conn, namespaces: list[str]) -> None:
 
 
 def cpu_s(pid: int) -> float:
-    """User + system CPU time (s) of a process so far, all its threads."""
-    fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+    """CPU time (s) of a process so far, its live threads summed: the scheduler's nanosecond count of time on a CPU
+    (``/proc/PID/task/TID/schedstat``, first field), not /proc/PID/stat's 10 ms ticks, which at ~100 us per message
+    do not resolve a 2 s chunk to 5 %. (A thread that ends between two readings takes its time along: the nodes'
+    threads live as long as the process.)"""
+    total = 0
+    for task in os.scandir(f'/proc/{pid}/task'):
+        with contextlib.suppress(FileNotFoundError, ProcessLookupError):  # (the thread ended since the listing)
+            total += int(Path(task.path, 'schedstat').read_bytes().split(None, 1)[0])
+    return total * 1e-9
 
 
 class Rig:
@@ -125,16 +136,16 @@ class Rig:
                       for label, cmd in cmds.items()}
         spawn = mp.get_context('spawn')
         self.conn, child = spawn.Pipe()
-        self.rec = spawn.Process(target=recorder, args=(child, list(NAMESPACES.values())), daemon=True)
+        self.rec = spawn.Process(target=recorder, args=(child, [NAMESPACES[label] for label in cmds]), daemon=True)
         self.rec.start()
         assert self.conn.recv() == 'ready'
         self.ctx = rclpy.Context()
         rclpy.init(context=self.ctx)
         self.node = rclpy.create_node(f'bench_{random.randint(0, 1 << 30)}', context=self.ctx)
         qos = input_qos(*QOS_IN)
-        self.pubs = {label: (self.node.create_publisher(Imu, f'/{ns}/imu/data_raw', qos),
-                             self.node.create_publisher(MagneticField, f'/{ns}/imu/mag', qos))
-                     for label, ns in NAMESPACES.items()}
+        self.pubs = {label: (self.node.create_publisher(Imu, f'/{NAMESPACES[label]}/imu/data_raw', qos),
+                             self.node.create_publisher(MagneticField, f'/{NAMESPACES[label]}/imu/mag', qos))
+                     for label in cmds}
         deadline = time.time() + 30
         while time.time() < deadline and not all(
                 pi.get_subscription_count() and pm.get_subscription_count()
@@ -248,9 +259,11 @@ def main() -> None:
     ap.add_argument('--cpu', action='store_true', help='CPU per message at 200/400/1000 Hz and our code\'s share')
     ap.add_argument('--rates', default='200,400,1000', help='--cpu: input rates, Hz, comma-separated')
     ap.add_argument('--ccf-args', default='', help='--cpu: more ROS arguments for ccf_node (e.g. "-p use_mag:=false")')
+    ap.add_argument('--chunk-s', type=float, default=2.0, help='--cpu: length of one chunk, s')
     args = ap.parse_args()
     if args.cpu:
-        cpu_per_message(args.chunks, tuple(float(r) for r in args.rates.split(',')), args.ccf_args.split())
+        cpu_per_message(args.chunks, tuple(float(r) for r in args.rates.split(',')), args.ccf_args.split(),
+                        args.chunk_s)
     else:
         throughput_and_latency(args)
 
@@ -332,48 +345,72 @@ def throughput_and_latency(args: argparse.Namespace) -> None:
 
 
 def cpu_per_message(chunks: int, rates: tuple[float, ...] = (200.0, 400.0, 1000.0),
-                    ccf_args: list[str] | None = None) -> None:
-    """CPU time per answered IMU message (with its magnetometer message) of both nodes at each rate, interleaved
-    in 2 s chunks, and the share of ccf_node's own per-message code (a fresh pair of nodes per rate)."""
+                    ccf_args: list[str] | None = None, chunk_s: float = 2.0) -> None:
+    """CPU time per answered IMU message (with its magnetometer message) of ccf_node and of two identical
+    pass-through nodes at each rate, and the share of ccf_node's own per-message code (a fresh set of nodes per rate).
+
+    Chunks of ``chunk_s`` per node, in rounds ordered pass-through, ccf_node, pass-through 2 and then reversed: each
+    ccf_node chunk lies between the two pass-through chunks of its round, so a load that drifts over a round falls on
+    both sides alike. Per round: ccf_node / mean of the two pass-throughs (the ratio), and pass-through 2 /
+    pass-through (A/A: what the measurement itself makes of two identical nodes). Printed: the median of the rounds'
+    ratios, their interquartile range and min-max."""
     import tempfile
 
-    print(f'ROS_DOMAIN_ID={os.environ["ROS_DOMAIN_ID"]}, input QoS {QOS_IN[0]} depth {QOS_IN[1]}; {chunks} chunks of '
-          f'2 s per node and rate, interleaved; load average {os.getloadavg()[0]:.1f}', flush=True)
-    cmds = {'pass-through': [sys.executable, str(HERE / 'passthrough_node.py'), '--ros-args'],
+    print(f'ROS_DOMAIN_ID={os.environ["ROS_DOMAIN_ID"]}, input QoS {QOS_IN[0]} depth {QOS_IN[1]}; {chunks} rounds of '
+          f'{chunk_s:g} s chunks per node and rate, interleaved (pt, ccf, pt2 / pt2, ccf, pt); CPU from '
+          f'/proc/PID/task/*/schedstat; load average {os.getloadavg()[0]:.1f}', flush=True)
+    passthrough = [sys.executable, str(HERE / 'passthrough_node.py'), '--ros-args']
+    cmds = {'pass-through': passthrough,
             'ccf_node': [sys.executable, str(HERE / 'node_share.py'), '--ros-args', '--log-level', 'error',
-                         *(ccf_args or [])]}
+                         *(ccf_args or [])],
+            'pass-through 2': passthrough}
     labels = list(cmds)
     rows = []
     for rate in rates:
         share_file = Path(tempfile.mkstemp(prefix='ccf_share_')[1])
         os.environ['CCF_SHARE_OUT'] = str(share_file)
         rig = Rig(cmds)
-        cpu: dict[str, list[float]] = {k: [] for k in labels}
-        n_msg: dict[str, int] = dict.fromkeys(labels, 0)
+        cpu: dict[str, list[float]] = {k: [] for k in labels}  # us per answered message, per chunk
         lost: dict[str, int] = dict.fromkeys(labels, 0)
+        answered: dict[str, list[str]] = {k: [] for k in labels}
         try:
             for r in range(chunks):
                 for label in order(labels, r):
-                    sent, cpu_used = rig.send(label, rate, 2.0, 1, settle_s=0.3)
+                    sent, cpu_used = rig.send(label, rate, chunk_s, 1, settle_s=0.3)
                     n_answered = len(rig.answered(label, sent))
                     lost[label] += len(sent) - n_answered
-                    cpu[label].append(cpu_used)
+                    answered[label].append(f'{n_answered}/{len(sent)}')
                     # Per answered message: a node that falls behind drops messages at its queue, unprocessed.
-                    n_msg[label] += n_answered
+                    cpu[label].append(cpu_used / max(n_answered, 1) * 1e6)
         finally:
             codes = rig.close()
         ours_ns, n_imu, _ = (int(v) for v in share_file.read_text().split())
         share_file.unlink()
-        per = {k: sum(cpu[k]) / n_msg[k] * 1e6 for k in labels}
+        c, a1, a2 = (np.array(cpu[k]) for k in ('ccf_node', 'pass-through', 'pass-through 2'))
+        ratio, aa = c / ((a1 + a2) / 2), a2 / a1
         # Our code over every IMU message the node took (the chunks' and the rig's start-up probe alike).
         ours = ours_ns / 1e3 / max(n_imu, 1)
-        rows.append((rate, per['ccf_node'], per['pass-through'], ours))
-        print(f'  {rate:6.0f} Hz: ccf_node {per["ccf_node"]:6.1f} us/message, pass-through {per["pass-through"]:6.1f} '
-              f'us/message, ratio {per["ccf_node"] / per["pass-through"]:.2f}; our code {ours:5.1f} us/message = '
-              f'{100 * ours / per["ccf_node"]:.0f} % of ccf_node\'s; lost {lost}; exit codes {codes}', flush=True)
-    print('rate Hz | ccf_node us/msg | pass-through us/msg | ratio (target <= 0.8) | our code us/msg | share (<= 25 %)')
-    for rate, c, pt, ours in rows:
-        print(f'{rate:7.0f} | {c:15.1f} | {pt:19.1f} | {c / pt:21.2f} | {ours:15.1f} | {100 * ours / c:5.0f} %')
+        per = {k: float(np.median(v)) for k, v in cpu.items()}
+        rows.append((rate, per, ratio, aa, ours))
+        print(f'  {rate:6.0f} Hz per round: ratio {" ".join(f"{x:.2f}" for x in ratio)}; A/A '
+              f'{" ".join(f"{x:.2f}" for x in aa)}; answered/sent {answered}', flush=True)
+        print(f'  {rate:6.0f} Hz: median us/message ccf_node {per["ccf_node"]:.1f}, pass-through '
+              f'{per["pass-through"]:.1f}, pass-through 2 {per["pass-through 2"]:.1f}; ratio {_spread(ratio)}; '
+              f'A/A {_spread(aa)}; our code {ours:.1f} us/message = {100 * ours / per["ccf_node"]:.0f} % of '
+              f'ccf_node\'s; lost {lost}; exit codes {codes}; load average {os.getloadavg()[0]:.1f}', flush=True)
+    print('rate Hz | ccf_node us/msg | pass-through us/msg | ratio: median [IQR] (target <= 0.8) | A/A median [IQR] '
+          '(1.00 +- 0.05) | our code us/msg | share (<= 25 %)')
+    for rate, per, ratio, aa, ours in rows:
+        print(f'{rate:7.0f} | {per["ccf_node"]:15.1f} | {per["pass-through"]:19.1f} | '
+              f'{np.median(ratio):.2f} [{np.percentile(ratio, 25):.2f}-{np.percentile(ratio, 75):.2f}] | '
+              f'{np.median(aa):.2f} [{np.percentile(aa, 25):.2f}-{np.percentile(aa, 75):.2f}] | {ours:15.1f} | '
+              f'{100 * ours / per["ccf_node"]:5.0f} %')
+
+
+def _spread(x: np.ndarray) -> str:
+    """Median, interquartile range and min-max of per-round ratios."""
+    return (f'{np.median(x):.3f} (IQR {np.percentile(x, 25):.3f}-{np.percentile(x, 75):.3f}, '
+            f'min-max {x.min():.3f}-{x.max():.3f}, n={len(x)})')
 
 
 def broad_through_node() -> None:

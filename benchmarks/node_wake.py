@@ -6,7 +6,7 @@ rclpy node) in a context of its own, adds a guard condition, and measures the th
 trigger + ``spin_once`` until its callback ran, in rounds (median of the rounds' per-cycle time). Run it against two versions (e.g.
 ``PYTHONPATH=<old checkout>``) alternately and compare.
 
-Usage: python benchmarks/node_wake.py [--bare] [--cycles 3000] [--rounds 5]
+Usage: python benchmarks/node_wake.py [--bare] [--cycles 3000] [--rounds 5] [--executor rclpy|lean]
 (sets ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; uses ROS_DOMAIN_ID if set, else a random domain of its own)
 """
 
@@ -30,6 +30,8 @@ def main() -> None:
     ap.add_argument('--bare', action='store_true', help='a bare rclpy node instead of ccf_node')
     ap.add_argument('--cycles', type=int, default=3000)
     ap.add_argument('--rounds', type=int, default=5)
+    ap.add_argument('--executor', choices=('rclpy', 'lean'), default='rclpy',
+                    help="rclpy's SingleThreadedExecutor, or the executables' LeanExecutor (ccf_ros.node.executor)")
     args = ap.parse_args()
     ctx = rclpy.Context()
     rclpy.init(context=ctx)
@@ -39,7 +41,12 @@ def main() -> None:
         from ccf_ros.node import CcfNode
 
         node = CcfNode(context=ctx)
-    ex = SingleThreadedExecutor(context=ctx)
+    if args.executor == 'lean':
+        from ccf_ros.node.executor import LeanExecutor
+
+        ex = LeanExecutor(context=ctx)
+    else:
+        ex = SingleThreadedExecutor(context=ctx)
     ex.add_node(node)
     fired = [0]
     gc = node.create_guard_condition(lambda: fired.__setitem__(0, fired[0] + 1))
@@ -55,7 +62,7 @@ def main() -> None:
         per_cycle.append((time.thread_time() - t0) / args.cycles * 1e6)
     assert fired[0] == args.cycles * args.rounds, fired
     n = (len(list(node.subscriptions)), len(list(node.services)), len(list(node.timers)), len(list(node.waitables)))
-    print(f'{"bare" if args.bare else "ccf_node"}: {statistics.median(per_cycle):.1f} us CPU per wake-up (median of '
+    print(f'{"bare" if args.bare else "ccf_node"}, {args.executor} executor: {statistics.median(per_cycle):.1f} us CPU per wake-up (median of '
           f'{args.rounds} x {args.cycles}); subscriptions, services, timers, waitables: {n}')
     ex.shutdown()
     node.destroy_node()

@@ -201,3 +201,95 @@ def test_component_launch_file_starts_the_plain_drop_in():
     names = {n.func.id for n in ast.walk(tree) if isinstance(n, ast.Call) and isinstance(n.func, ast.Name)}
     assert 'IncludeLaunchDescription' in names and 'ComposableNodeContainer' not in names
     assert "'imu_filter.launch.py'" in text
+
+
+#: Runs a node's entry point with SIGINT sent to itself at one stage (argv[1]); argv[2]: 'lifecycle' or 'plain'.
+_SIGINT_AT = r'''
+import os, signal, sys
+import rclpy
+import ccf_ros.node.entry as entry
+from ccf_ros.node.node import CcfNode
+
+stage, kind = sys.argv[1], sys.argv[2]
+def kill():
+    os.kill(os.getpid(), signal.SIGINT)
+if stage == 'after_init':  # rclpy's handlers installed, no node yet
+    real_init = rclpy.init
+    def init(*args, **kwargs):
+        real_init(*args, **kwargs)
+        kill()
+    rclpy.init = init
+elif stage == 'constructing':  # as the node is being made: rclpy shuts the context down under it
+    real_init_profile = CcfNode._init_profile
+    def init_profile(self, profile):
+        kill()
+        return real_init_profile(self, profile)
+    CcfNode._init_profile = init_profile
+elif stage == 'in_del':
+    # The signal is handled inside a __del__ (as when rclpy frees a callback's Task) while rclpy's own signal
+    # handling does nothing (as when its signal thread runs late: the context stays up, no wake-up comes).
+    from rclpy.signals import SignalHandlerOptions
+    real_init = rclpy.init
+    rclpy.init = lambda args=None: real_init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    class Freed:
+        def __del__(self):
+            kill()
+            len(())  # a call: the pending signal's Python handler runs here, inside __del__
+    real_timer = CcfNode._on_timer
+    def on_timer(self):
+        Freed()
+        return real_timer(self)
+    CcfNode._on_timer = on_timer
+elif stage == 'shutdown_race':
+    # SIGINT once running; rclpy's signal thread shuts the context down between try_shutdown's check and its
+    # shutdown (emulated: rclpy's own handling off, the check sees the context as it was a moment before).
+    from rclpy.context import Context
+    from rclpy.signals import SignalHandlerOptions
+    real_init = rclpy.init
+    rclpy.init = lambda args=None: real_init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    real_timer = CcfNode._on_timer
+    def on_timer(self):
+        kill()
+        return real_timer(self)
+    CcfNode._on_timer = on_timer
+    real_try_shutdown = Context.try_shutdown
+    def try_shutdown(self):
+        real = self._Context__context
+        if real is None or not real.ok():
+            return real_try_shutdown(self)
+        real.shutdown()  # the signal thread, just after the check below
+        class Seen:
+            def __enter__(self):
+                return real.__enter__()
+            def __exit__(self, *exc):
+                return real.__exit__(*exc)
+            def ok(self):
+                return True
+            def shutdown(self):
+                return real.shutdown()
+        self._Context__context = Seen()
+        try:
+            real_try_shutdown(self)
+        finally:
+            self._Context__context = real
+    Context.try_shutdown = try_shutdown
+print('stage', stage, flush=True)
+entry.main([], lifecycle=kind == 'lifecycle')
+print('exited', flush=True)
+'''
+
+
+@pytest.mark.parametrize(('stage', 'kind'), [('after_init', 'lifecycle'), ('constructing', 'plain'),
+                                             ('constructing', 'lifecycle'), ('in_del', 'plain'),
+                                             ('shutdown_race', 'plain')])
+def test_sigint_at_any_stage_exits_cleanly(stage, kind):
+    """SIGINT right after rclpy.init, while the node is being made, handled inside a __del__ while rclpy's signal
+    thread has not (yet) shut the context down, and shutting the context down while the node does: exit code 0, no
+    traceback, within the wait bound. (in_del: the node used to run on, its KeyboardInterrupt printed as ignored and
+    lost; shutdown_race: it exited 1 with "rcl_shutdown already called".)"""
+    proc = subprocess.run([sys.executable, '-c', _SIGINT_AT, stage, kind], capture_output=True, text=True,
+                          timeout=60)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 0, out
+    assert 'Traceback' not in out and 'Exception ignored' not in out, out
+    assert 'exited' in proc.stdout, out

@@ -39,8 +39,8 @@ IMU, MAG = '/imu/data_raw', '/imu/mag'
 class Harness:
     """A feeder/recorder node and the node under test on one executor."""
 
-    def __init__(self, ctx, node, ns=''):
-        self.ex = SingleThreadedExecutor(context=ctx)
+    def __init__(self, ctx, node, ns='', executor=None):
+        self.ex = executor or SingleThreadedExecutor(context=ctx)
         self.node = node
         self.io = rclpy.create_node('feeder', context=ctx, namespace=ns)
         self.pub_imu = self.io.create_publisher(Imu, 'imu/data_raw', RELIABLE)
@@ -607,10 +607,10 @@ def test_an_error_while_running_is_a_traceback_not_a_startup_parameter_error(mon
     bug and propagates with its traceback."""
     import ccf_ros.node.entry as node_module
 
-    def spin(_node):
+    def spin_once(_executor, _timeout_sec=None):
         raise ValueError('injected error while running')
 
-    monkeypatch.setattr(node_module.rclpy, 'spin', spin)
+    monkeypatch.setattr(node_module.LeanExecutor, 'spin_once', spin_once)
     with pytest.raises(ValueError, match='injected error while running'):
         node_module.main([])
 
@@ -628,12 +628,12 @@ def test_a_sigint_while_the_executor_builds_its_wait_set_is_a_clean_exit(monkeyp
     def wait_set_on(context):
         return _rclpy.WaitSet(0, 0, 0, 0, 0, 0, context.handle)
 
-    def spin_interrupted(node):
-        context = node.context
+    def spin_interrupted(executor, _timeout_sec=None):
+        context = executor.context
         rclpy.shutdown(context=context)  # what the signal thread does on SIGINT
         wait_set_on(context)  # what the executor does next
 
-    monkeypatch.setattr(node_module.rclpy, 'spin', spin_interrupted)
+    monkeypatch.setattr(node_module.LeanExecutor, 'spin_once', spin_interrupted)
     with pytest.raises(Exception, match='context is not valid'):
         # (The race's error is real: building a wait set on a shut-down context raises it.)
         rclpy.init(args=[])
@@ -643,10 +643,10 @@ def test_a_sigint_while_the_executor_builds_its_wait_set_is_a_clean_exit(monkeyp
     node_module.main([])  # no exception: a clean exit
     assert not rclpy.ok()
 
-    def spin_broken(node):
+    def spin_broken(_executor, _timeout_sec=None):
         raise _rclpy.RCLError('injected: an RCL failure while running')
 
-    monkeypatch.setattr(node_module.rclpy, 'spin', spin_broken)
+    monkeypatch.setattr(node_module.LeanExecutor, 'spin_once', spin_broken)
     with pytest.raises(_rclpy.RCLError, match='injected'):
         node_module.main([])
 

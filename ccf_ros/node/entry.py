@@ -3,14 +3,21 @@ name them through :mod:`ccf_ros.node`)."""
 
 from __future__ import annotations
 
+import signal
+import threading
+from typing import Any
+
 import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.qos_overriding_options import InvalidQosOverridesError
 
+from .executor import LeanExecutor
 from .lifecycle import CcfLifecycleNode
 from .node import CcfNode
+
+RCLError = _rclpy.RCLError
 
 
 def _is_startup_error(err: BaseException) -> bool:
@@ -21,33 +28,86 @@ def _is_startup_error(err: BaseException) -> bool:
     return isinstance(err, RuntimeError) and str(err).startswith('Unexpected QoS override')
 
 
+class _StopSignal:
+    """SIGINT/SIGTERM noted as a flag by a Python handler installed before ``rclpy.init`` (rclpy's own handler, which
+    wakes the executor and shuts the context down, chains to it).
+
+    Why not rclpy's default (Python's KeyboardInterrupt, or the context shut down): a KeyboardInterrupt is raised
+    wherever the main thread runs Python next, and one raised inside a ``__del__`` (rclpy frees a ``Task`` with a
+    ``__del__`` after each callback) is printed as "Exception ignored" and lost; the signal's wake-up of the wait can
+    then come before rclpy's signal thread has shut the context down, and the executor waits again, for ever when
+    nothing else wakes it (an unconfigured lifecycle node has no timer). A flag cannot be lost, and the spin loop
+    looks at it after every wait, which is never longer than :attr:`LeanExecutor.MAX_WAIT_S`.
+    """
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self) -> None:
+        self.received: int | None = None
+        self._previous: dict[int, Any] = {}
+
+    def __enter__(self) -> _StopSignal:
+        if threading.current_thread() is threading.main_thread():  # (signal handlers exist only there)
+            self._previous = {sig: signal.signal(sig, self._note) for sig in self.SIGNALS}
+        return self
+
+    def _note(self, signum: int, _frame: Any) -> None:
+        self.received = signum
+
+    def __exit__(self, *exc: object) -> None:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+
+
 def main(args: list[str] | None = None, profile: str = 'ccf_node', lifecycle: bool = False) -> None:
     """Entry point of ``ccf_node`` / ``ros2 run ccf_ros ccf_node`` (and, with ``profile``, of the drop-ins; with
-    ``lifecycle``, of ``ccf_lifecycle_node``)."""
+    ``lifecycle``, of ``ccf_lifecycle_node``). Exits 0 on SIGINT/SIGTERM at any stage after start-up began."""
     node: CcfNode | None = None
+    executor: LeanExecutor | None = None
+    with _StopSignal() as stop:
+        try:
+            rclpy.init(args=args)
+            # (A signal by now has shut the context down: nothing made on it could live; rclpy's entities made in
+            # the moment it does fail, as below, with "Exception ignored" noise from their __del__.)
+            if stop.received is None:
+                executor = LeanExecutor()
+                node = CcfLifecycleNode(profile) if lifecycle else CcfNode(profile)
+                executor.add_node(node)
+            while stop.received is None and executor is not None and executor.context.ok():
+                executor.spin_once(executor.MAX_WAIT_S)
+        except (KeyboardInterrupt, ExternalShutdownException):
+            pass
+        except Exception as err:
+            if stop.received is not None or (isinstance(err, RCLError) and not rclpy.ok()):
+                # A signal: rclpy's signal thread shuts the context down concurrently, and whatever rclpy did on it
+                # at that moment (making the node, building a wait set) raised RCLError ('the given context is not
+                # valid'); the same clean exit. An RCLError while the context is valid is a bug (below).
+                pass
+            elif node is not None or not _is_startup_error(err):
+                # Only what the start-up raised is the user's parameters; an error while running is a bug.
+                raise
+            else:
+                # Invalid parameters at start-up: one clear line, non-zero exit.
+                print(f'{profile}: error: {err}', flush=True)
+                raise SystemExit(2) from None
+        finally:
+            if executor is not None:
+                executor.shutdown()  # (releases the handles it holds)
+            if node is not None:
+                node.destroy_node()
+            _try_shutdown()
+
+
+def _try_shutdown() -> None:
+    """``rclpy.try_shutdown()``, when rclpy's signal thread may be shutting the context down at the same moment: its
+    check (context ok) and its shutdown are two steps, and the thread's shutdown between them made it raise "rcl_shutdown
+    already called" (exit 1 with a traceback, once in 80 SIGINTs under load)."""
     try:
-        rclpy.init(args=args)
-        node = CcfLifecycleNode(profile) if lifecycle else CcfNode(profile)
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except _rclpy.RCLError:
-        # rclpy's signal thread shuts the context down while the executor runs: between its ``context.ok()`` check
-        # and building the next wait set, a SIGINT makes that raise RCLError ('the given context is not valid')
-        # instead of ExternalShutdownException. After a shutdown that is the same clean exit; otherwise a bug.
+        rclpy.try_shutdown()
+    except RCLError:
         if rclpy.ok():
             raise
-    except Exception as err:
-        # Only what the start-up raised is the user's parameters; an error while running is a bug: its traceback.
-        if node is not None or not _is_startup_error(err):
-            raise
-        # Invalid parameters at start-up: one clear line, non-zero exit.
-        print(f'{profile}: error: {err}', flush=True)
-        raise SystemExit(2) from None
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+        rclpy.try_shutdown()  # (shut down meanwhile: now only drops the default context)
 
 
 def lifecycle_main(args: list[str] | None = None) -> None:

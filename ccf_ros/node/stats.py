@@ -5,6 +5,7 @@ passed in by the caller."""
 from __future__ import annotations
 
 import math
+from bisect import bisect_left, bisect_right
 from collections import deque
 
 #: Input rate over the arrivals of this window (s).
@@ -76,15 +77,16 @@ class InputStats:
         """The nominal interval: the median of the window's intervals that are not the short ones inside a burst
         (below a third of the 95th percentile), robust to jitter, to bursts and to losses of up to half the
         messages; samples per read: the nominal interval over the mean of the intervals that are not holes."""
+        # (Slices of the sorted window where a filter would do: the same values, without a Python loop.)
         s = sorted(self._intervals)
         p95 = s[int(0.95 * (len(s) - 1))]
-        long = [x for x in s if x >= p95 / 3.0]
+        long = s[bisect_left(s, p95 / 3.0):]
         nominal = long[len(long) // 2]
         # Jitter: a hole must also stand HOLE_SIGMAS robust deviations (1.4826 MAD) of the nominal intervals above
         # them, or a driver that stamps on arrival would report losses all the time.
-        spread = 1.4826 * sorted(abs(x - nominal) for x in long)[len(long) // 2]
+        spread = 1.4826 * sorted([abs(x - nominal) for x in long])[len(long) // 2]
         self._hole_s = nominal + max((HOLE_FACTOR - 1.0) * nominal, HOLE_SIGMAS * spread)
-        normal = [x for x in s if x <= self._hole_s]
+        normal = s[:bisect_right(s, self._hole_s)]
         self._period_s = sum(normal) / len(normal)
         self._per_read = max(1, round(nominal / self._period_s))
         self._nominal_s = nominal
