@@ -18,6 +18,7 @@ from typing import Any, NamedTuple
 
 from .core.base import ANSWERED_BELOW, OrientationFilter, Status, acc_usable, mag_usable
 from .core.ccf import GRAVITY_M_S2, CcfParams
+from .core.hard_iron import UPDATE_PERIOD_S as _HARD_IRON_PERIOD_S
 from .core.hard_iron import HardIronEstimator, HardIronStatus
 from .core.pairing import MagPairer
 from .core.quaternion import (
@@ -313,8 +314,10 @@ class ImuEngine:
             if hi.pending is not None:
                 self._online_hard_iron()
             if mag is not None:
-                if t_s >= hi.t_next or t_s < hi.t_next - 1.0:
-                    hi.pending = (t_s, mag) if hi.due(t_s) else None
+                # (HardIronEstimator.due's test written out: due, or the clock went back)
+                if t_s >= hi.t_next or t_s < hi.t_next - _HARD_IRON_PERIOD_S:
+                    hi.due(t_s)
+                    hi.pending = (t_s, mag)
                 o = hi.offset
                 if o is not None:
                     mag = (mag[0] - o[0], mag[1] - o[1], mag[2] - o[2])
@@ -433,8 +436,9 @@ class ImuEngine:
                 if hi.pending is not None:
                     self._online_hard_iron()
                 if mag is not None:
-                    if t >= hi.t_next or t < hi.t_next - 1.0:
-                        hi.pending = (t, mag) if hi.due(t) else None
+                    if t >= hi.t_next or t < hi.t_next - _HARD_IRON_PERIOD_S:
+                        hi.due(t)
+                        hi.pending = (t, mag)
                     o = hi.offset
                     if o is not None:
                         mag = (mag[0] - o[0], mag[1] - o[1], mag[2] - o[2])

@@ -407,10 +407,18 @@ class HardIronEstimator:
 
     def state(self) -> dict[str, Any]:
         """Everything needed to continue after a restart, as plain floats and lists (for a YAML/JSON file)."""
-        if self._batch:
-            self._fold()
-        f = self._long
-        f.solve()  # the pairs since the latest decision too (what restore() will solve for)
+        # The pairs since the latest decision folded in and solved for (what restore() continues from), on copies:
+        # saving must not change what comes next (a node saves its bias_file every few seconds of wall time and must
+        # still answer as replay does).
+        live = (self._long, self._short, self._batch)
+        self._long, self._short = self._long.copy(), self._short.copy()
+        try:
+            if self._batch:
+                self._fold()
+            f = self._long
+            f.solve()
+        finally:
+            self._long, self._short, self._batch = live
         return {
             'status': self._status, 'offset': list(self._offset), 'estimate': [float(v) for v in f.estimate],
             'sigma': [float(v) for v in f.sigma], 'information': [float(v) for v in f.H.ravel()],
