@@ -3,7 +3,7 @@
 The engine (the node's, replay's and the fleet's per-message path) is fed a recording's arrays in one loop, no callback;
 on and off alternate in interleaved rounds and the ratio of the best round of each (CPU time of this process: the machine is shared, the wall time varies with the others' load) is printed (
 a ratio in one run, not absolute times). Also the share of the estimator's own work: pairing (every 0.1 s) and
-solving (every 5th pair), by counting calls.
+solving (every 50th pair (every 5th while the applied offset moves)), by counting calls.
 
 Usage: python benchmarks/hard_iron_cost.py [BAG] [--rounds 7] [--samples 40000]
 (default: a shared BROAD trial; without it, a simulated 286 Hz hand-held recording)
