@@ -125,3 +125,37 @@ def test_lean_executor_runs_async_callbacks_and_tasks(context):
     finally:
         ex.shutdown()
         node.destroy_node()
+
+
+def _spin_until(ex, cond, n=50, timeout_s=0.1):
+    for _ in range(n):
+        if cond():
+            return True
+        ex.spin_once(timeout_s)
+    return cond()
+
+
+def test_lean_executor_runs_a_ready_guard_condition_when_a_callback_made_an_entity(context):
+    """A timer and a guard condition ready in the same wait, the timer's callback makes a timer (the wait set is
+    rebuilt before the guard's turn): the guard condition's callback still runs."""
+    ex = LeanExecutor(context=context)
+    node = rclpy.create_node('lean_guard', context=context)
+    ex.add_node(node)
+    guard_ran, made = [], []
+
+    def on_timer():
+        tmr.cancel()
+        made.append(node.create_timer(10.0, lambda: None))
+
+    tmr = node.create_timer(0.001, on_timer)
+    gc = node.create_guard_condition(lambda: guard_ran.append(1))
+    try:
+        while tmr.time_until_next_call() > 0:  # (the timer ready before the wait)
+            pass
+        gc.trigger()
+        ex.spin_once(1.0)
+        assert made  # the timer ran first (timers before guard conditions) and made one
+        assert _spin_until(ex, lambda: guard_ran)
+    finally:
+        ex.shutdown()
+        node.destroy_node()

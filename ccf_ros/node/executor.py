@@ -14,7 +14,7 @@ callback groups are not consulted (one thread never runs two callbacks at once).
 from __future__ import annotations
 
 import inspect
-from contextlib import ExitStack
+from contextlib import ExitStack, suppress
 from typing import Any
 
 from rclpy.exceptions import InvalidHandle
@@ -155,24 +155,30 @@ class LeanExecutor(Executor):
         if self._stale:
             # Entities were made or destroyed (in another thread): rebuild first; what is ready stays ready (a
             # node's guard condition that fired is triggered again).
-            if c.guards:
-                ready = ws.get_ready_entities('guard_condition')
-                for _, ptr, gc in c.guards:
-                    if ptr in ready:
-                        gc.trigger()
+            self._rearm(c, ws, 0)
             return
         self._dispatch(c, ws)
 
     def _dispatch(self, c: _WaitSet, ws: Any) -> None:
-        """Run the ready callbacks; stop when one of them made or destroyed an entity (the rest stay ready)."""
-        if c.waitables and self._waitables(c, ws):
-            return
-        if c.timers and self._timers(c, ws):
-            return
-        if c.subs and self._subscriptions(c, ws):
+        """Run the ready callbacks; stop when one of them made or destroyed an entity (the rest stay ready: a
+        subscription, timer, client or service is ready again in the next wait, a guard condition is re-armed)."""
+        if ((c.waitables and self._waitables(c, ws)) or (c.timers and self._timers(c, ws))
+                or (c.subs and self._subscriptions(c, ws))):
+            self._rearm(c, ws, 0)
             return
         if c.guards or c.clients or c.services:
             self._guards_clients_services(c, ws)
+
+    @staticmethod
+    def _rearm(c: _WaitSet, ws: Any, start: int) -> None:
+        """Trigger again the nodes' guard conditions from ``start`` on that were ready in this wait (a guard
+        condition is ready once per trigger: one whose callback has not run would be lost in the rebuild)."""
+        if len(c.guards) > start:
+            ready = ws.get_ready_entities('guard_condition')
+            for _, ptr, gc in c.guards[start:]:
+                if ptr in ready:
+                    with suppress(InvalidHandle):  # (destroyed meanwhile)
+                        gc.trigger()
 
     def _waitables(self, c: _WaitSet, ws: Any) -> bool:
         for w in c.waitables:
@@ -205,10 +211,11 @@ class LeanExecutor(Executor):
 
     def _guards_clients_services(self, c: _WaitSet, ws: Any) -> None:
         ready = ws.get_ready_entities('guard_condition') if c.guards else ()
-        for _, ptr, gc in c.guards:
+        for i, (_, ptr, gc) in enumerate(c.guards):
             if ptr in ready and gc.callback is not None:
                 self._run(gc.callback())
                 if self._stale:
+                    self._rearm(c, ws, i + 1)
                     return
         ready = ws.get_ready_entities('client') if c.clients else ()
         for _, ptr, client in c.clients:
