@@ -159,3 +159,65 @@ def test_lean_executor_runs_a_ready_guard_condition_when_a_callback_made_an_enti
     finally:
         ex.shutdown()
         node.destroy_node()
+
+
+def test_lean_executor_spin_once_after_shutdown_returns(context):
+    ex = LeanExecutor(context=context)
+    node = rclpy.create_node('lean_after_shutdown', context=context)
+    ex.add_node(node)
+    try:
+        ex.spin_once(0.01)
+        assert ex.shutdown()
+        ex.spin_once(0.01)  # returns (nothing to run), does not raise
+        ex.spin()
+    finally:
+        node.destroy_node()
+
+
+def test_lean_executor_shutdown_during_a_spin_keeps_the_handles_until_it_ends(context):
+    """shutdown() while spin_once runs (here from a callback; from another thread it may be in the wait): the
+    entities' handles stay held until that spin_once ends, then are released."""
+    ex = LeanExecutor(context=context)
+    node = rclpy.create_node('lean_shutdown_in_spin', context=context)
+    ex.add_node(node)
+    seen = []
+
+    def on_timer():
+        ex.shutdown()
+        node.destroy_timer(tmr)
+        seen.append(tmr.handle.pointer)
+
+    tmr = node.create_timer(0.001, on_timer)
+    try:
+        assert _spin_until(ex, lambda: seen)
+        assert seen[0] != 0  # still held (the spin_once was in progress)
+        assert tmr.handle.pointer == 0  # released when it ended
+    finally:
+        node.destroy_node()
+
+
+def test_lean_executor_releases_the_handles_when_building_the_wait_set_fails(context, monkeypatch):
+    """rclpy's WaitSet raising (the context shut down meanwhile) leaves no handle held."""
+    import types
+
+    import ccf_ros.node.executor as executor_module
+
+    ex = LeanExecutor(context=context)
+    node = rclpy.create_node('lean_failed_build', context=context)
+    ex.add_node(node)
+    tmr = node.create_timer(10.0, lambda: None)
+    real = executor_module._rclpy
+
+    def failing_wait_set(*_args):
+        raise real.RCLError('the context is shut down')
+
+    monkeypatch.setattr(executor_module, '_rclpy', types.SimpleNamespace(WaitSet=failing_wait_set))
+    try:
+        with pytest.raises(real.RCLError):
+            ex.spin_once(0.01)
+        node.destroy_timer(tmr)
+        assert tmr.handle.pointer == 0  # freed at once: not held by the wait set that failed
+    finally:
+        monkeypatch.undo()
+        ex.shutdown()
+        node.destroy_node()

@@ -14,6 +14,7 @@ callback groups are not consulted (one thread never runs two callbacks at once).
 from __future__ import annotations
 
 import inspect
+import threading
 from contextlib import ExitStack, suppress
 from typing import Any
 
@@ -30,6 +31,13 @@ class _WaitSet:
 
     def __init__(self, executor: LeanExecutor) -> None:
         self.stack = ExitStack()
+        try:
+            self._build(executor)
+        except BaseException:
+            self.close()  # (e.g. the context shut down meanwhile: the handles entered so far are released)
+            raise
+
+    def _build(self, executor: LeanExecutor) -> None:
         subs: list[Any] = []
         timers: list[Any] = []
         clients: list[Any] = []
@@ -51,7 +59,7 @@ class _WaitSet:
         self.services = [(s.handle, s.handle.pointer, s) for s in services if self._enter(s.handle)]
         #: the nodes' guard conditions (with callbacks), then the executor's two (wake-up, signal)
         self.guards = [(g.handle, g.handle.pointer, g) for g in guards if self._enter(g.handle)]
-        own = [g.handle for g in (executor._guard, executor._sigint_gc) if self._enter(g.handle)]
+        own = [g.handle for g in (executor._guard, executor._sigint_gc) if g is not None and self._enter(g.handle)]
         self.waitables = [w for w in waitables if self._enter(w)]
         self.stack.enter_context(executor.context.handle)  # type: ignore[arg-type]
         n = NumberOfEntities(len(self.subs), len(self.guards) + len(own), len(self.timers), len(self.clients),
@@ -95,6 +103,10 @@ class LeanExecutor(Executor):
         #: the entities may have changed since the wait set was built
         self._stale = True
         self.n_builds = 0
+        #: a spin_once is running (guarded by ``_spin_lock``): shutdown then leaves the release of the held handles
+        #: to it, as its wait may be on them
+        self._spinning = False
+        self._spin_lock = threading.Lock()
 
     # rclpy calls these (and Node its executor's wake()) whenever a node or an entity is added or removed.
     def wake(self) -> None:
@@ -110,8 +122,11 @@ class LeanExecutor(Executor):
         super().remove_node(node)
 
     def shutdown(self, timeout_sec: float | None = None) -> bool:
-        self._release()
-        return super().shutdown(timeout_sec)
+        done = super().shutdown(timeout_sec)  # (wakes a spin_once waiting)
+        with self._spin_lock:
+            if not self._spinning:
+                self._release()
+        return done
 
     def spin(self) -> None:
         """Run callbacks until the context is shut down (a signal) or :meth:`shutdown`."""
@@ -124,7 +139,21 @@ class LeanExecutor(Executor):
         self.spin_once(timeout_sec.timeout if isinstance(timeout_sec, TimeoutObject) else timeout_sec)
 
     def spin_once(self, timeout_sec: float | None = None) -> None:
-        """Wait up to ``timeout_sec`` (None: no limit) and run every callback that is ready."""
+        """Wait up to ``timeout_sec`` (None: no limit) and run every callback that is ready (nothing once shut
+        down)."""
+        with self._spin_lock:
+            if self._is_shutdown:
+                return
+            self._spinning = True
+        try:
+            self._spin_once(timeout_sec)
+        finally:
+            with self._spin_lock:
+                self._spinning = False
+                if self._is_shutdown:  # (shutdown from another thread or a callback: it left the release here)
+                    self._release()
+
+    def _spin_once(self, timeout_sec: float | None) -> None:
         if self._tasks:
             self._run_tasks()
         if self._stale or self._ws is None:
@@ -132,6 +161,8 @@ class LeanExecutor(Executor):
             self._stale = False
             self._ws = _WaitSet(self)
             self.n_builds += 1
+            if self._is_shutdown:  # (meanwhile: the executor's guard conditions may be gone)
+                return
         c = self._ws
         ws = c.wait_set
         ws.clear_entities()
