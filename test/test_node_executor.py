@@ -221,3 +221,25 @@ def test_lean_executor_releases_the_handles_when_building_the_wait_set_fails(con
         monkeypatch.undo()
         ex.shutdown()
         node.destroy_node()
+
+
+def test_lean_executor_follows_a_subscription_callback_replaced_at_run_time(context):
+    """``sub.callback = f`` (rclpy's setter), here to a callback that also takes the message info: f gets the next
+    message."""
+    ex = LeanExecutor(context=context)
+    node = rclpy.create_node('lean_callback', context=context)
+    ex.add_node(node)
+    first, second = [], []
+    sub = node.create_subscription(String, 'lean_callback', lambda msg: first.append(msg.data), 10)
+    pub = node.create_publisher(String, 'lean_callback', 10)
+    try:
+        assert _spin_until(ex, lambda: pub.get_subscription_count(), 200, 0.05)
+        pub.publish(String(data='a'))
+        assert _spin_until(ex, lambda: first)
+        sub.callback = lambda msg, info: second.append((msg.data, info['publication_sequence_number'] > 0))
+        pub.publish(String(data='b'))
+        assert _spin_until(ex, lambda: second)
+        assert first == ['a'] and second == [('b', True)]
+    finally:
+        ex.shutdown()
+        node.destroy_node()

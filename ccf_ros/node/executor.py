@@ -25,6 +25,8 @@ from rclpy.subscription import Subscription
 from rclpy.task import Task
 from rclpy.waitable import NumberOfEntities
 
+_MESSAGE_ONLY = Subscription.CallbackType.MessageOnly
+
 
 class _WaitSet:
     """One wait set and what is in it, the handles held (entered) so that none is freed while it is there."""
@@ -51,9 +53,8 @@ class _WaitSet:
             services += node.services
             guards += node.guards
             waitables += node.waitables
-        self.subs = [(s.handle, s.handle.pointer, s.callback, s.msg_type, s.raw,
-                      s._callback_type is Subscription.CallbackType.MessageOnly)
-                     for s in subs if self._enter(s.handle)]
+        #: (the callback is read at each message: rclpy's setter may replace it, and its kind, at run time)
+        self.subs = [(s.handle, s.handle.pointer, s, s.msg_type, s.raw) for s in subs if self._enter(s.handle)]
         self.timers = [(t.handle, t.handle.pointer, t) for t in timers if self._enter(t.handle)]
         self.clients = [(c.handle, c.handle.pointer, c) for c in clients if self._enter(c.handle)]
         self.services = [(s.handle, s.handle.pointer, s) for s in services if self._enter(s.handle)]
@@ -231,11 +232,12 @@ class LeanExecutor(Executor):
 
     def _subscriptions(self, c: _WaitSet, ws: Any) -> bool:
         ready = ws.get_ready_entities('subscription')
-        for h, ptr, callback, msg_type, raw, msg_only in c.subs:
+        for h, ptr, sub, msg_type, raw in c.subs:
             if ptr in ready:
                 taken = h.take_message(msg_type, raw)
                 if taken is not None:
-                    self._run(callback(taken[0]) if msg_only else callback(*taken))
+                    callback = sub._callback
+                    self._run(callback(taken[0]) if sub._callback_type is _MESSAGE_ONLY else callback(*taken))
                     if self._stale:
                         return True
         return False
