@@ -243,3 +243,20 @@ def test_lean_executor_follows_a_subscription_callback_replaced_at_run_time(cont
     finally:
         ex.shutdown()
         node.destroy_node()
+
+
+def test_lean_executor_frees_an_entity_destroyed_between_spins(context):
+    """The wait set holds the entities' handles: one destroyed while the executor is not spinning is freed at once
+    (not kept alive until the next spin_once)."""
+    ex = LeanExecutor(context=context)
+    node = rclpy.create_node('lean_destroyed', context=context)
+    ex.add_node(node)
+    tmr = node.create_timer(10.0, lambda: None)
+    try:
+        ex.spin_once(0.01)
+        ex.spin_once(0.01)  # (the wait set built and kept)
+        node.destroy_timer(tmr)
+        assert tmr.handle.pointer == 0
+    finally:
+        ex.shutdown()
+        node.destroy_node()

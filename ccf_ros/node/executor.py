@@ -8,7 +8,9 @@ as the entities do not change (rclpy's ``Node`` wakes its executor on every enti
 executor rebuilds then), refills it per wake-up with one C call per entity, and runs the ready callbacks in place
 (the order rclpy uses: waitables, then timers, subscriptions, guard conditions, clients, services). Single-threaded;
 callback groups are not consulted (one thread never runs two callbacks at once). Coroutine callbacks run as
-``Task`` s as in rclpy.
+``Task`` s as in rclpy. The wait set holds the entities' handles (as rclpy's does during a wait), so an entity
+destroyed is freed when the wait set is let go: at once between spins, at the end of the ``spin_once`` running
+otherwise (and :meth:`~LeanExecutor.shutdown` during a ``spin_once`` leaves the release to it).
 """
 
 from __future__ import annotations
@@ -112,6 +114,9 @@ class LeanExecutor(Executor):
     # rclpy calls these (and Node its executor's wake()) whenever a node or an entity is added or removed.
     def wake(self) -> None:
         self._stale = True
+        with self._spin_lock:
+            if not self._spinning:  # (an entity destroyed between spins is freed now, not at the next spin)
+                self._release()
         super().wake()
 
     def add_node(self, node: Any) -> bool:
@@ -151,7 +156,9 @@ class LeanExecutor(Executor):
         finally:
             with self._spin_lock:
                 self._spinning = False
-                if self._is_shutdown:  # (shutdown from another thread or a callback: it left the release here)
+                # shutdown from another thread or a callback left the release here; an entity destroyed in this
+                # spin is freed now, not at the next one
+                if self._is_shutdown or self._stale:
                     self._release()
 
     def _spin_once(self, timeout_sec: float | None) -> None:
