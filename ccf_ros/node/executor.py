@@ -128,7 +128,13 @@ class LeanExecutor(Executor):
         super().remove_node(node)
 
     def shutdown(self, timeout_sec: float | None = None) -> bool:
-        done = super().shutdown(timeout_sec)  # (wakes a spin_once waiting)
+        # The handles are let go here when no spin_once runs (before rclpy destroys the executor's guard conditions,
+        # as ever), else by that spin_once once its wait (woken by rclpy's shutdown) has returned; and again after,
+        # for a spin_once that ended meanwhile.
+        with self._spin_lock:
+            if not self._spinning:
+                self._release()
+        done = super().shutdown(timeout_sec)
         with self._spin_lock:
             if not self._spinning:
                 self._release()
@@ -149,6 +155,7 @@ class LeanExecutor(Executor):
         down)."""
         with self._spin_lock:
             if self._is_shutdown:
+                self._release()
                 return
             self._spinning = True
         try:
