@@ -125,3 +125,138 @@ def test_lean_executor_runs_async_callbacks_and_tasks(context):
     finally:
         ex.shutdown()
         node.destroy_node()
+
+
+def _spin_until(ex, cond, n=50, timeout_s=0.1):
+    for _ in range(n):
+        if cond():
+            return True
+        ex.spin_once(timeout_s)
+    return cond()
+
+
+def test_lean_executor_runs_a_ready_guard_condition_when_a_callback_made_an_entity(context):
+    """A timer and a guard condition ready in the same wait, the timer's callback makes a timer (the wait set is
+    rebuilt before the guard's turn): the guard condition's callback still runs."""
+    ex = LeanExecutor(context=context)
+    node = rclpy.create_node('lean_guard', context=context)
+    ex.add_node(node)
+    guard_ran, made = [], []
+
+    def on_timer():
+        tmr.cancel()
+        made.append(node.create_timer(10.0, lambda: None))
+
+    tmr = node.create_timer(0.001, on_timer)
+    gc = node.create_guard_condition(lambda: guard_ran.append(1))
+    try:
+        while tmr.time_until_next_call() > 0:  # (the timer ready before the wait)
+            pass
+        gc.trigger()
+        ex.spin_once(1.0)
+        assert made  # the timer ran first (timers before guard conditions) and made one
+        assert _spin_until(ex, lambda: guard_ran)
+    finally:
+        ex.shutdown()
+        node.destroy_node()
+
+
+def test_lean_executor_spin_once_after_shutdown_returns(context):
+    ex = LeanExecutor(context=context)
+    node = rclpy.create_node('lean_after_shutdown', context=context)
+    ex.add_node(node)
+    try:
+        ex.spin_once(0.01)
+        assert ex.shutdown()
+        ex.spin_once(0.01)  # returns (nothing to run), does not raise
+        ex.spin()
+    finally:
+        node.destroy_node()
+
+
+def test_lean_executor_shutdown_during_a_spin_keeps_the_handles_until_it_ends(context):
+    """shutdown() while spin_once runs (here from a callback; from another thread it may be in the wait): the
+    entities' handles stay held until that spin_once ends, then are released."""
+    ex = LeanExecutor(context=context)
+    node = rclpy.create_node('lean_shutdown_in_spin', context=context)
+    ex.add_node(node)
+    seen = []
+
+    def on_timer():
+        ex.shutdown()
+        node.destroy_timer(tmr)
+        seen.append(tmr.handle.pointer)
+
+    tmr = node.create_timer(0.001, on_timer)
+    try:
+        assert _spin_until(ex, lambda: seen)
+        assert seen[0] != 0  # still held (the spin_once was in progress)
+        assert tmr.handle.pointer == 0  # released when it ended
+    finally:
+        node.destroy_node()
+
+
+def test_lean_executor_releases_the_handles_when_building_the_wait_set_fails(context, monkeypatch):
+    """rclpy's WaitSet raising (the context shut down meanwhile) leaves no handle held."""
+    import types
+
+    import ccf_ros.node.executor as executor_module
+
+    ex = LeanExecutor(context=context)
+    node = rclpy.create_node('lean_failed_build', context=context)
+    ex.add_node(node)
+    tmr = node.create_timer(10.0, lambda: None)
+    real = executor_module._rclpy
+
+    def failing_wait_set(*_args):
+        raise real.RCLError('the context is shut down')
+
+    monkeypatch.setattr(executor_module, '_rclpy', types.SimpleNamespace(WaitSet=failing_wait_set))
+    try:
+        with pytest.raises(real.RCLError):
+            ex.spin_once(0.01)
+        node.destroy_timer(tmr)
+        assert tmr.handle.pointer == 0  # freed at once: not held by the wait set that failed
+    finally:
+        monkeypatch.undo()
+        ex.shutdown()
+        node.destroy_node()
+
+
+def test_lean_executor_follows_a_subscription_callback_replaced_at_run_time(context):
+    """``sub.callback = f`` (rclpy's setter), here to a callback that also takes the message info: f gets the next
+    message."""
+    ex = LeanExecutor(context=context)
+    node = rclpy.create_node('lean_callback', context=context)
+    ex.add_node(node)
+    first, second = [], []
+    sub = node.create_subscription(String, 'lean_callback', lambda msg: first.append(msg.data), 10)
+    pub = node.create_publisher(String, 'lean_callback', 10)
+    try:
+        assert _spin_until(ex, lambda: pub.get_subscription_count(), 200, 0.05)
+        pub.publish(String(data='a'))
+        assert _spin_until(ex, lambda: first)
+        sub.callback = lambda msg, info: second.append((msg.data, info['publication_sequence_number'] > 0))
+        pub.publish(String(data='b'))
+        assert _spin_until(ex, lambda: second)
+        assert first == ['a'] and second == [('b', True)]
+    finally:
+        ex.shutdown()
+        node.destroy_node()
+
+
+def test_lean_executor_frees_an_entity_destroyed_between_spins(context):
+    """The wait set holds the entities' handles: one destroyed while the executor is not spinning is freed at once
+    (not kept alive until the next spin_once)."""
+    ex = LeanExecutor(context=context)
+    node = rclpy.create_node('lean_destroyed', context=context)
+    ex.add_node(node)
+    tmr = node.create_timer(10.0, lambda: None)
+    try:
+        ex.spin_once(0.01)
+        ex.spin_once(0.01)  # (the wait set built and kept)
+        node.destroy_timer(tmr)
+        assert tmr.handle.pointer == 0
+    finally:
+        ex.shutdown()
+        node.destroy_node()

@@ -8,13 +8,16 @@ as the entities do not change (rclpy's ``Node`` wakes its executor on every enti
 executor rebuilds then), refills it per wake-up with one C call per entity, and runs the ready callbacks in place
 (the order rclpy uses: waitables, then timers, subscriptions, guard conditions, clients, services). Single-threaded;
 callback groups are not consulted (one thread never runs two callbacks at once). Coroutine callbacks run as
-``Task`` s as in rclpy.
+``Task`` s as in rclpy. The wait set holds the entities' handles (as rclpy's does during a wait), so an entity
+destroyed is freed when the wait set is let go: at once between spins, at the end of the ``spin_once`` running
+otherwise (and :meth:`~LeanExecutor.shutdown` during a ``spin_once`` leaves the release to it).
 """
 
 from __future__ import annotations
 
 import inspect
-from contextlib import ExitStack
+import threading
+from contextlib import ExitStack, suppress
 from typing import Any
 
 from rclpy.exceptions import InvalidHandle
@@ -24,12 +27,21 @@ from rclpy.subscription import Subscription
 from rclpy.task import Task
 from rclpy.waitable import NumberOfEntities
 
+_MESSAGE_ONLY = Subscription.CallbackType.MessageOnly
+
 
 class _WaitSet:
     """One wait set and what is in it, the handles held (entered) so that none is freed while it is there."""
 
     def __init__(self, executor: LeanExecutor) -> None:
         self.stack = ExitStack()
+        try:
+            self._build(executor)
+        except BaseException:
+            self.close()  # (e.g. the context shut down meanwhile: the handles entered so far are released)
+            raise
+
+    def _build(self, executor: LeanExecutor) -> None:
         subs: list[Any] = []
         timers: list[Any] = []
         clients: list[Any] = []
@@ -43,15 +55,14 @@ class _WaitSet:
             services += node.services
             guards += node.guards
             waitables += node.waitables
-        self.subs = [(s.handle, s.handle.pointer, s.callback, s.msg_type, s.raw,
-                      s._callback_type is Subscription.CallbackType.MessageOnly)
-                     for s in subs if self._enter(s.handle)]
+        #: (the callback is read at each message: rclpy's setter may replace it, and its kind, at run time)
+        self.subs = [(s.handle, s.handle.pointer, s, s.msg_type, s.raw) for s in subs if self._enter(s.handle)]
         self.timers = [(t.handle, t.handle.pointer, t) for t in timers if self._enter(t.handle)]
         self.clients = [(c.handle, c.handle.pointer, c) for c in clients if self._enter(c.handle)]
         self.services = [(s.handle, s.handle.pointer, s) for s in services if self._enter(s.handle)]
         #: the nodes' guard conditions (with callbacks), then the executor's two (wake-up, signal)
         self.guards = [(g.handle, g.handle.pointer, g) for g in guards if self._enter(g.handle)]
-        own = [g.handle for g in (executor._guard, executor._sigint_gc) if self._enter(g.handle)]
+        own = [g.handle for g in (executor._guard, executor._sigint_gc) if g is not None and self._enter(g.handle)]
         self.waitables = [w for w in waitables if self._enter(w)]
         self.stack.enter_context(executor.context.handle)  # type: ignore[arg-type]
         n = NumberOfEntities(len(self.subs), len(self.guards) + len(own), len(self.timers), len(self.clients),
@@ -95,10 +106,17 @@ class LeanExecutor(Executor):
         #: the entities may have changed since the wait set was built
         self._stale = True
         self.n_builds = 0
+        #: a spin_once is running (guarded by ``_spin_lock``): shutdown then leaves the release of the held handles
+        #: to it, as its wait may be on them
+        self._spinning = False
+        self._spin_lock = threading.Lock()
 
     # rclpy calls these (and Node its executor's wake()) whenever a node or an entity is added or removed.
     def wake(self) -> None:
         self._stale = True
+        with self._spin_lock:
+            if not self._spinning:  # (an entity destroyed between spins is freed now, not at the next spin)
+                self._release()
         super().wake()
 
     def add_node(self, node: Any) -> bool:
@@ -110,8 +128,17 @@ class LeanExecutor(Executor):
         super().remove_node(node)
 
     def shutdown(self, timeout_sec: float | None = None) -> bool:
-        self._release()
-        return super().shutdown(timeout_sec)
+        # The handles are let go here when no spin_once runs (before rclpy destroys the executor's guard conditions,
+        # as ever), else by that spin_once once its wait (woken by rclpy's shutdown) has returned; and again after,
+        # for a spin_once that ended meanwhile.
+        with self._spin_lock:
+            if not self._spinning:
+                self._release()
+        done = super().shutdown(timeout_sec)
+        with self._spin_lock:
+            if not self._spinning:
+                self._release()
+        return done
 
     def spin(self) -> None:
         """Run callbacks until the context is shut down (a signal) or :meth:`shutdown`."""
@@ -124,7 +151,24 @@ class LeanExecutor(Executor):
         self.spin_once(timeout_sec.timeout if isinstance(timeout_sec, TimeoutObject) else timeout_sec)
 
     def spin_once(self, timeout_sec: float | None = None) -> None:
-        """Wait up to ``timeout_sec`` (None: no limit) and run every callback that is ready."""
+        """Wait up to ``timeout_sec`` (None: no limit) and run every callback that is ready (nothing once shut
+        down)."""
+        with self._spin_lock:
+            if self._is_shutdown:
+                self._release()
+                return
+            self._spinning = True
+        try:
+            self._spin_once(timeout_sec)
+        finally:
+            with self._spin_lock:
+                self._spinning = False
+                # shutdown from another thread or a callback left the release here; an entity destroyed in this
+                # spin is freed now, not at the next one
+                if self._is_shutdown or self._stale:
+                    self._release()
+
+    def _spin_once(self, timeout_sec: float | None) -> None:
         if self._tasks:
             self._run_tasks()
         if self._stale or self._ws is None:
@@ -132,6 +176,8 @@ class LeanExecutor(Executor):
             self._stale = False
             self._ws = _WaitSet(self)
             self.n_builds += 1
+            if self._is_shutdown:  # (meanwhile: the executor's guard conditions may be gone)
+                return
         c = self._ws
         ws = c.wait_set
         ws.clear_entities()
@@ -155,24 +201,30 @@ class LeanExecutor(Executor):
         if self._stale:
             # Entities were made or destroyed (in another thread): rebuild first; what is ready stays ready (a
             # node's guard condition that fired is triggered again).
-            if c.guards:
-                ready = ws.get_ready_entities('guard_condition')
-                for _, ptr, gc in c.guards:
-                    if ptr in ready:
-                        gc.trigger()
+            self._rearm(c, ws, 0)
             return
         self._dispatch(c, ws)
 
     def _dispatch(self, c: _WaitSet, ws: Any) -> None:
-        """Run the ready callbacks; stop when one of them made or destroyed an entity (the rest stay ready)."""
-        if c.waitables and self._waitables(c, ws):
-            return
-        if c.timers and self._timers(c, ws):
-            return
-        if c.subs and self._subscriptions(c, ws):
+        """Run the ready callbacks; stop when one of them made or destroyed an entity (the rest stay ready: a
+        subscription, timer, client or service is ready again in the next wait, a guard condition is re-armed)."""
+        if ((c.waitables and self._waitables(c, ws)) or (c.timers and self._timers(c, ws))
+                or (c.subs and self._subscriptions(c, ws))):
+            self._rearm(c, ws, 0)
             return
         if c.guards or c.clients or c.services:
             self._guards_clients_services(c, ws)
+
+    @staticmethod
+    def _rearm(c: _WaitSet, ws: Any, start: int) -> None:
+        """Trigger again the nodes' guard conditions from ``start`` on that were ready in this wait (a guard
+        condition is ready once per trigger: one whose callback has not run would be lost in the rebuild)."""
+        if len(c.guards) > start:
+            ready = ws.get_ready_entities('guard_condition')
+            for _, ptr, gc in c.guards[start:]:
+                if ptr in ready:
+                    with suppress(InvalidHandle):  # (destroyed meanwhile)
+                        gc.trigger()
 
     def _waitables(self, c: _WaitSet, ws: Any) -> bool:
         for w in c.waitables:
@@ -194,21 +246,23 @@ class LeanExecutor(Executor):
 
     def _subscriptions(self, c: _WaitSet, ws: Any) -> bool:
         ready = ws.get_ready_entities('subscription')
-        for h, ptr, callback, msg_type, raw, msg_only in c.subs:
+        for h, ptr, sub, msg_type, raw in c.subs:
             if ptr in ready:
                 taken = h.take_message(msg_type, raw)
                 if taken is not None:
-                    self._run(callback(taken[0]) if msg_only else callback(*taken))
+                    callback = sub._callback
+                    self._run(callback(taken[0]) if sub._callback_type is _MESSAGE_ONLY else callback(*taken))
                     if self._stale:
                         return True
         return False
 
     def _guards_clients_services(self, c: _WaitSet, ws: Any) -> None:
         ready = ws.get_ready_entities('guard_condition') if c.guards else ()
-        for _, ptr, gc in c.guards:
+        for i, (_, ptr, gc) in enumerate(c.guards):
             if ptr in ready and gc.callback is not None:
                 self._run(gc.callback())
                 if self._stale:
+                    self._rearm(c, ws, i + 1)
                     return
         ready = ws.get_ready_entities('client') if c.clients else ()
         for _, ptr, client in c.clients:
