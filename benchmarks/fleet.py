@@ -223,7 +223,7 @@ from ccf_ros.cli import build_parser, engine_settings
 from ccf_ros.fleet.task import FleetOptions, process_bag
 merged, strict = engine_settings(build_parser().parse_args(['fleet', 'run', 'x', '-o', 'y']))
 opts = FleetOptions(out=sys.argv[2], settings=merged, strict=strict, version=__version__, reference='')
-r = process_bag(sys.argv[1], 'rss', opts)
+r = process_bag(sys.argv[1], 'rss-' + sys.argv[1].rstrip('/').rsplit('/', 1)[-1], opts)  # (a key per bag: exactly once)
 assert r['status'] == 'ok', r
 print(r['samples'], resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, r['wall_s'])
 """
