@@ -18,7 +18,6 @@ from typing import Any, NamedTuple
 
 from .core.base import ANSWERED_BELOW, OrientationFilter, Status, acc_usable, mag_usable
 from .core.ccf import GRAVITY_M_S2, CcfParams
-from .core.hard_iron import UPDATE_PERIOD_S as _HARD_IRON_PERIOD_S
 from .core.hard_iron import HardIronEstimator, HardIronStatus
 from .core.pairing import MagPairer
 from .core.quaternion import (
@@ -309,18 +308,11 @@ class ImuEngine:
         f = self.filter
         hi = self.hard_iron
         if hi is not None:
-            # Online hard iron, inlined (per sample: a test or two): pair the sample kept at the previous message, keep
-            # this one when due, subtract the applied offset.
+            # Online hard iron: pair the sample kept at the previous message, keep this one when due, subtract the
+            # applied offset (HardIronEstimator.correct: one rule for this path and on_chunk's).
             if hi.pending is not None:
                 self._online_hard_iron()
-            if mag is not None:
-                # (HardIronEstimator.due's test written out: due, or the clock went back)
-                if t_s >= hi.t_next or t_s < hi.t_next - _HARD_IRON_PERIOD_S:
-                    hi.due(t_s)
-                    hi.pending = (t_s, mag)
-                o = hi.offset
-                if o is not None:
-                    mag = (mag[0] - o[0], mag[1] - o[1], mag[2] - o[2])
+            mag = hi.correct(t_s, mag)
         self.paired_mag = mag
         if self._stateless:
             return self._stateless_output(t_s, gyr, acc, mag)
@@ -432,16 +424,10 @@ class ImuEngine:
                         t_in_use, field = tm, m
             mag = None if field is None or t - t_in_use > timeout else field
             if hi is not None:
-                # on_imu's online hard iron, written out the same way (pair, keep when due, subtract the offset)
+                # on_imu's online hard iron (pair, keep when due, subtract the offset)
                 if hi.pending is not None:
                     self._online_hard_iron()
-                if mag is not None:
-                    if t >= hi.t_next or t < hi.t_next - _HARD_IRON_PERIOD_S:
-                        hi.due(t)
-                        hi.pending = (t, mag)
-                    o = hi.offset
-                    if o is not None:
-                        mag = (mag[0] - o[0], mag[1] - o[1], mag[2] - o[2])
+                mag = hi.correct(t, mag)
             status = update(t, (x1, y1, z1), (x2, y2, z2), mag)
             if mags is not None and rejected is not None:
                 mags.extend(mag or nan3)
