@@ -216,8 +216,11 @@ def write_big_bag(path: Path, n: int, rate_hz: float = 200.0) -> None:
             flush()
 
 
+# The peak is VmHWM (/proc/self/status: the high-water mark of this process's own address space, new at exec), not
+# getrusage's ru_maxrss: Linux carries the parent's peak into a child's ru_maxrss across fork and exec, so a child of
+# this benchmark (which holds a large bag's arrays while it writes it) reported the benchmark's own ~135 MB.
 RSS_SCRIPT = """
-import resource, sys
+import sys
 from ccf_ros import __version__
 from ccf_ros.cli import build_parser, engine_settings
 from ccf_ros.fleet.task import FleetOptions, process_bag
@@ -225,7 +228,8 @@ merged, strict = engine_settings(build_parser().parse_args(['fleet', 'run', 'x',
 opts = FleetOptions(out=sys.argv[2], settings=merged, strict=strict, version=__version__, reference='')
 r = process_bag(sys.argv[1], 'rss-' + sys.argv[1].rstrip('/').rsplit('/', 1)[-1], opts)  # (a key per bag: exactly once)
 assert r['status'] == 'ok', r
-print(r['samples'], resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, r['wall_s'])
+hwm = next(line for line in open('/proc/self/status') if line.startswith('VmHWM:'))
+print(r['samples'], int(hwm.split()[1]) / 1024.0, r['wall_s'])
 """
 
 
