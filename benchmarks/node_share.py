@@ -2,8 +2,11 @@
 
 Thread CPU time (``time.thread_time_ns``) is summed over the node's per-message work (``CcfNode._mag``, ``_imu``: CDR
 reading, the engine, patching the answer) minus what rclpy's ``publish`` takes inside it, and written to the file
-named by ``CCF_SHARE_OUT`` at exit as ``ns_ours n_imu n_mag``. Everything else a message costs (DDS threads, rclpy's
-take and executor) is the rest of the process's CPU time. The timing itself adds ~4 clock reads per message.
+named by ``CCF_SHARE_OUT`` at exit as ``ns_ours n_imu n_mag``, followed by one line per IMU message: its
+``time.monotonic()`` after the callback and the ns of our code so far (so that node_bench takes our code's time over
+exactly the messages of each chunk it measures the process's CPU time on). Everything else a message costs (DDS
+threads, rclpy's take and executor) is the rest of the process's CPU time. The timing itself adds ~4 clock reads per
+message.
 With ``CCF_PROFILE_OUT`` set, a cProfile of the whole node (executor included) is written to that file at exit.
 """
 
@@ -18,6 +21,7 @@ from ccf_ros.node import CcfNode
 
 _clock = time.thread_time_ns
 TOTAL = [0, 0]  # ns in our per-message code, ns of rclpy publish inside it
+TIMELINE: list[tuple[float, int]] = []  # per IMU message: monotonic time after it, ns of our code so far
 
 
 def _timed(method, slot):
@@ -42,8 +46,18 @@ def _timed_publish(pub) -> None:
     pub.publish = timed
 
 
+def _logged(method):
+    def wrapper(self, *args):
+        try:
+            return method(self, *args)
+        finally:
+            TIMELINE.append((time.monotonic(), TOTAL[0] - TOTAL[1]))
+
+    return wrapper
+
+
 CcfNode._mag = _timed(CcfNode._mag, 0)
-CcfNode._imu = _timed(CcfNode._imu, 0)
+CcfNode._imu = _logged(_timed(CcfNode._imu, 0))
 _open = CcfNode._open_ccf
 
 
@@ -81,7 +95,8 @@ def main() -> None:
         out = os.environ.get('CCF_SHARE_OUT')
         node = stats.get('node')
         if out and node is not None:
-            Path(out).write_text(f'{TOTAL[0] - TOTAL[1]} {node.stats.n_imu} {node.stats.n_mag}\n')
+            Path(out).write_text(f'{TOTAL[0] - TOTAL[1]} {node.stats.n_imu} {node.stats.n_mag}\n'
+                                 + ''.join(f'{t!r} {ns}\n' for t, ns in TIMELINE))
 
 
 if __name__ == '__main__':
