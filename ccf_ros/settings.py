@@ -176,7 +176,14 @@ class ImuToolsGains:
 #: Where each group of settings applies (the filter parameters: the filters that have them).
 APPLIES_TO = {
     'selector': 'every executable', 'engine': 'node, drop-ins, replay, fleet',
-    'node': 'node, drop-ins (replay: the motion hint)', 'imu_tools': 'node, drop-ins, replay, fleet (accepted)',
+    'node': 'node, drop-ins', 'imu_tools': 'node, drop-ins, replay, fleet (accepted)',
+}
+#: Where a setting applies when not where its group's do: the motion hint is replay's too (a topic of the bag); the
+#: bias file is one IMU's state, which ``ccf fleet`` refuses.
+APPLIES_TO_SETTING = {
+    **dict.fromkeys(('motion_hint_topic', 'motion_hint_linear_m_s', 'motion_hint_angular_rad_s',
+                     'motion_hint_timeout_s'), 'node, drop-ins, replay'),
+    **dict.fromkeys(('bias_file', 'bias_file_heading'), 'node, drop-ins, replay'),
 }
 _DESCRIPTION_PREFIX = {'node': 'node: ', 'imu_tools': 'imu_tools gain, accepted; ccf uses '}
 
@@ -213,7 +220,8 @@ class Parameter:
 def _from_field(f: dataclasses.Field[Any], group: str, prefix: str = '') -> Parameter:
     m = f.metadata
     return Parameter(f.name, f.default, m['unit'], prefix + m['description'], group, m['range'], m['above'],
-                     m['choices'], m['per_axis'], m['lengths'], m['what'], applies_to=APPLIES_TO.get(group, ''))
+                     m['choices'], m['per_axis'], m['lengths'], m['what'],
+                     applies_to=APPLIES_TO_SETTING.get(f.name, APPLIES_TO.get(group, '')))
 
 
 def _users(name: str) -> list[tuple[str, str]]:
