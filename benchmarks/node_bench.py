@@ -27,7 +27,7 @@ see the same machine load, which on a shared machine changes by the second).
 
 Usage: python benchmarks/node_bench.py [--chunks 20] [--throughput-rounds 3] [--broad] [--node-cmd CMD]
        [--cpu [--rates 200,400,1000] [--chunk-s 2]]
-(sets ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; uses ROS_DOMAIN_ID if set, else a random domain of its own)
+(sets ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; uses ROS_DOMAIN_ID if set, else a free domain of 200-232, locked for the run)
 """
 
 from __future__ import annotations
@@ -43,9 +43,11 @@ import sys
 import time
 from pathlib import Path
 
-os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-# A domain of this run's own; child processes (spawned, re-importing this file) inherit the same one.
-os.environ.setdefault('ROS_DOMAIN_ID', str(random.randint(100, 200)))
+# A domain of this run's own (locked: no test suite or other tool takes it meanwhile); child processes (spawned,
+# re-importing this file) inherit it through the environment.
+from ccf_ros.domains import own_domain
+
+os.environ['ROS_DOMAIN_ID'] = str(own_domain())
 
 import numpy as np
 import rclpy

@@ -7,19 +7,19 @@ trigger + ``spin_once`` until its callback ran, in rounds (median of the rounds'
 ``PYTHONPATH=<old checkout>``) alternately and compare.
 
 Usage: python benchmarks/node_wake.py [--bare] [--cycles 3000] [--rounds 5] [--executor rclpy|lean]
-(sets ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; uses ROS_DOMAIN_ID if set, else a random domain of its own)
+(sets ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; uses ROS_DOMAIN_ID if set, else a free domain of 200-232, locked for the run)
 """
 
 from __future__ import annotations
 
 import argparse
 import os
-import random
 import statistics
 import time
 
-os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-os.environ.setdefault('ROS_DOMAIN_ID', str(random.randint(100, 200)))
+from ccf_ros.domains import own_domain
+
+os.environ['ROS_DOMAIN_ID'] = str(own_domain())
 
 import rclpy
 from rclpy.executors import SingleThreadedExecutor

@@ -20,7 +20,7 @@ not the node's, and "every input answered" checks the node); the complementary f
 (reliable, depth 10), so its bag is played at a pace its queue of 10 keeps up with.
 
 Usage: python checks/imu_tools_dropin.py [--rate 4] [--complementary-rate 1] [--bag BAG]
-(sets ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; uses ROS_DOMAIN_ID if set, else a random domain of its own)
+(sets ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; uses ROS_DOMAIN_ID if set, else a free domain of 200-232, locked for the run)
 """
 
 from __future__ import annotations
@@ -28,7 +28,6 @@ from __future__ import annotations
 import argparse
 import math
 import os
-import random
 import shutil
 import subprocess
 import sys
@@ -38,8 +37,9 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-os.environ.setdefault('ROS_DOMAIN_ID', str(random.randint(100, 200)))
+from ccf_ros.domains import own_domain
+
+os.environ['ROS_DOMAIN_ID'] = str(own_domain())
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / 'test'))

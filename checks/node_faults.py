@@ -11,13 +11,13 @@ Usage: python checks/node_faults.py
 from __future__ import annotations
 
 import os
-import random
 import sys
 import tempfile
 from pathlib import Path
 
-os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-os.environ['ROS_DOMAIN_ID'] = str(random.randint(100, 200))
+from ccf_ros.domains import own_domain
+
+os.environ['ROS_DOMAIN_ID'] = str(own_domain())
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'test'))
 
 import numpy as np

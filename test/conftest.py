@@ -3,16 +3,14 @@
 from __future__ import annotations
 
 import copy
-import fcntl
 import os
-import random
-import tempfile
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
+from ccf_ros import domains as domains_module
+from ccf_ros.domains import DOMAIN_LOCK_DIR
 from ccf_ros.messages.convert import stamp_s
 
 # Network rule: DDS traffic never leaves the loopback interface, and every test gets a domain of its own (see
@@ -22,8 +20,6 @@ os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 #: (CI jobs, developers' clones) share the range: a lock file per domain keeps each domain to one test at a time.
 DOMAINS_ENV = 'CCF_TEST_DOMAINS'
 DEFAULT_DOMAINS = '100-199'
-#: Where the per-domain lock files live (one machine-wide directory, as the domains are machine-wide).
-DOMAIN_LOCK_DIR = Path(tempfile.gettempdir()) / 'ccf_ros_test_domains'
 #: Longest wait for a free domain, s (every one held by other suites' tests).
 DOMAIN_WAIT_S = 120.0
 
@@ -41,31 +37,12 @@ def domain_range(spec: str | None = None) -> range:
     return range(lo, hi + 1)
 
 
-#: Index into the range of the next domain this process tries: round robin, so a domain just released (whose
-#: processes' DDS participants may still be leaving) is the last one this suite takes again.
-_next_domain = [random.Random(os.getpid()).randrange(1 << 16)]
-
-
 def acquire_domain(domains: range, wait_s: float = DOMAIN_WAIT_S, lock_dir: Path = DOMAIN_LOCK_DIR) -> tuple[int, int]:
-    """Lock a free domain of ``domains``: (domain, fd of its lock file; closing it releases the domain)."""
-    lock_dir.mkdir(mode=0o777, exist_ok=True)
-    deadline = time.monotonic() + wait_s
-    while True:
-        for i in range(len(domains)):
-            k = (_next_domain[0] + i) % len(domains)
-            d = domains[k]
-            fd = os.open(lock_dir / f'{d}.lock', os.O_CREAT | os.O_RDWR, 0o666)
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
-                os.close(fd)
-                continue
-            _next_domain[0] = k + 1
-            return d, fd
-        if time.monotonic() > deadline:
-            raise RuntimeError(f'no free ROS domain in {domains.start}-{domains.stop - 1} for {wait_s:.0f} s '
-                               f'(set {DOMAINS_ENV} to a wider or other range)')
-        time.sleep(0.2)  # every domain held by another suite's test: wait for one to finish
+    """Lock a free domain of ``domains`` (ccf_ros.domains: the demo, benchmarks and checks lock theirs alike)."""
+    try:
+        return domains_module.acquire_domain(domains, wait_s, lock_dir)
+    except RuntimeError as err:
+        raise RuntimeError(f'{err} (set {DOMAINS_ENV} to a wider or other range)') from None
 
 
 @pytest.fixture(autouse=True)

@@ -53,3 +53,29 @@ def test_a_parallel_suite_does_not_get_a_domain_this_one_holds(ros_domain):
     r = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr
     assert 'no free ROS domain' in r.stdout
+
+
+def test_a_tool_takes_a_locked_domain_outside_the_suites_and_keeps_the_users():
+    """The demo, benchmarks and checks (ccf_ros.domains.own_domain): without ROS_DOMAIN_ID, a free domain of 200-232
+    that stays locked while the process runs (a test suite or another tool cannot take it); with one, the user's."""
+    code = textwrap.dedent("""
+        import os
+        from ccf_ros.domains import TOOL_DOMAINS, acquire_domain, own_domain
+        d = own_domain()
+        assert os.environ['ROS_DOMAIN_ID'] == str(d) and d in TOOL_DOMAINS, d
+        assert os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
+        try:
+            acquire_domain(range(d, d + 1), wait_s=0.0)
+            print('not locked')
+        except RuntimeError:
+            print('locked', d)
+    """)
+    env = {k: v for k, v in os.environ.items() if k != 'ROS_DOMAIN_ID'}
+    r = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=60, env=env)
+    assert r.returncode == 0, r.stderr
+    # (flock locks belong to the open file description: the process's own second open is refused too)
+    assert r.stdout.startswith('locked '), r.stdout
+    env['ROS_DOMAIN_ID'] = '7'
+    r = subprocess.run([sys.executable, '-c', 'from ccf_ros.domains import own_domain; print(own_domain())'],
+                       capture_output=True, text=True, timeout=60, env=env)
+    assert r.stdout.strip() == '7', r.stderr

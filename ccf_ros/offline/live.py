@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import contextlib
-import os
-import random
 import shutil
 import signal
 import subprocess
@@ -17,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.quaternion import from_xyzw
+from ..domains import own_domain
 from ..errors import CcfError
 from ..messages.convert import seconds
 from .play import load_messages, play
@@ -24,8 +23,7 @@ from .play import load_messages, play
 
 def isolate_dds() -> None:
     """Keep DDS on loopback and off the user's domain unless they chose one (the demo is self-contained)."""
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    os.environ.setdefault('ROS_DOMAIN_ID', str(random.randint(100, 200)))
+    own_domain()
 
 
 def node_command() -> list[str]:
