@@ -1,14 +1,16 @@
 """``ccf fleet`` speed and memory: prints figures (ratios measured in this one run, interleaved).
 
 1. ``ccf fleet run -j 2 --write-bags`` vs a sequential shell loop of ``ccf replay`` over the same >= 20 bags (the
-   BROAD nine, linked, plus simulated bags; simulated only without ../shared). Before it, the fixed cost of a fleet
+   BROAD nine, linked, plus simulated bags; simulated only without ../shared), in ``--rounds`` rounds of both
+   whose order alternates. Before it, the fixed cost of a fleet
    run: ``ccf fleet run -j 2`` on one bag vs ``ccf replay`` of it (CPU s).
 2. Per core, in one process, on one bag (BROAD 02, else a simulated one): a bare rosbags read of the IMU and
    magnetometer records, the health-only task, the task with ``--write-bags``, ``replay()`` now and ``replay()`` on
    rosbags' own reader and writer (the path before the own MCAP reader), in samples/s.
-3. Peak RSS of a worker process running the health-only task on a 2e6-sample bag and on a 2e5-sample one.
+3. Peak RSS (VmHWM) of a plain process running the health-only task (what one Dask worker's task holds, without
+   what the Dask worker process itself holds besides) on a 2e6-sample bag and on a 2e5-sample one.
 
-    .venv/bin/python benchmarks/fleet.py [--sim-bags 11] [--repeats 3] [--big 2000000]
+    .venv/bin/python benchmarks/fleet.py [--sim-bags 11] [--repeats 3] [--rounds 2] [--big 2000000] [--skip ...]
 """
 
 from __future__ import annotations
@@ -53,7 +55,7 @@ def make_bags(folder: Path, n_sim: int) -> list[Path]:
     return bags
 
 
-def fleet_vs_loop(bags: list[Path], work: Path) -> None:
+def fleet_vs_loop(bags: list[Path], work: Path, rounds: int = 2) -> None:
     n = 0
     from ccf_ros.offline.bagio import message_counts
 
@@ -65,19 +67,32 @@ def fleet_vs_loop(bags: list[Path], work: Path) -> None:
         r = resource.getrusage(resource.RUSAGE_CHILDREN)
         return r.ru_utime + r.ru_stime
 
-    c0, t0 = cpu(), time.perf_counter()
-    for b in bags:
-        subprocess.run([str(BIN / 'ccf'), 'replay', str(b), '-o', str(work / 'loop' / b.name), '--overwrite'],
-                       check=True, capture_output=True)
-    loop_s, loop_cpu = time.perf_counter() - t0, cpu() - c0
-    c0, t0 = cpu(), time.perf_counter()
-    r = subprocess.run([str(BIN / 'ccf'), 'fleet', 'run', str(bags[0].parent), '-o', str(work / 'fleet'), '-j', '2',
-                        '--write-bags', '--reference', '', '--quiet'], capture_output=True, text=True)
-    fleet_s, fleet_cpu = time.perf_counter() - t0, cpu() - c0
-    assert r.returncode == 0, r.stdout + r.stderr
-    print(f'{len(bags)} bags, {n} IMU samples: sequential ccf replay loop {loop_s:.1f} s wall ({loop_cpu:.1f} CPU s), '
-          f'ccf fleet run -j 2 --write-bags {fleet_s:.1f} s wall ({fleet_cpu:.1f} CPU s; cluster start included): '
-          f'{loop_s / fleet_s:.2f}x faster; load average at the end {os.getloadavg()[0]:.1f}')
+    def loop(r: int) -> None:
+        for b in bags:
+            subprocess.run([str(BIN / 'ccf'), 'replay', str(b), '-o', str(work / f'loop{r}' / b.name), '--overwrite'],
+                           check=True, capture_output=True)
+
+    def fleet(r: int) -> None:
+        out = subprocess.run([str(BIN / 'ccf'), 'fleet', 'run', str(bags[0].parent), '-o', str(work / f'fleet{r}'),
+                              '-j', '2', '--write-bags', '--reference', '', '--quiet'], capture_output=True, text=True)
+        assert out.returncode == 0, out.stdout + out.stderr
+
+    # Interleaved: loop then fleet in even rounds, fleet then loop in odd ones (each into a new output folder), so
+    # that neither always runs on a warmer page cache or a quieter machine.
+    ratios = []
+    for r in range(rounds):
+        took = {}
+        for name, fn in ((('loop', loop), ('fleet', fleet)) if r % 2 == 0 else (('fleet', fleet), ('loop', loop))):
+            c0, t0 = cpu(), time.perf_counter()
+            fn(r)
+            took[name] = (time.perf_counter() - t0, cpu() - c0)
+        (loop_s, loop_cpu), (fleet_s, fleet_cpu) = took['loop'], took['fleet']
+        ratios.append(loop_s / fleet_s)
+        print(f'round {r + 1}: {len(bags)} bags, {n} IMU samples: sequential ccf replay loop {loop_s:.1f} s wall '
+              f'({loop_cpu:.1f} CPU s), ccf fleet run -j 2 --write-bags {fleet_s:.1f} s wall ({fleet_cpu:.1f} CPU s; '
+              f'cluster start included): {loop_s / fleet_s:.2f}x faster; load average {os.getloadavg()[0]:.1f}',
+              flush=True)
+    print(f'fleet -j 2 vs the loop: {statistics.median(ratios):.2f}x (median of {rounds} interleaved rounds)')
 
 
 def fixed_cost(bag: Path, work: Path) -> None:
@@ -252,6 +267,7 @@ def main() -> None:
     ap.add_argument('--sim-bags', type=int, default=11)
     ap.add_argument('--repeats', type=int, default=3)
     ap.add_argument('--big', type=int, default=2_000_000)
+    ap.add_argument('--rounds', type=int, default=2, help='interleaved rounds of the fleet vs loop comparison')
     ap.add_argument('--skip', default='', help='comma-separated parts to skip: fleet, core, rss')
     args = ap.parse_args()
     skip = set(args.skip.split(','))
@@ -265,7 +281,7 @@ def main() -> None:
         if 'fleet' not in skip:
             bags = make_bags(work / 'bags', args.sim_bags)
             fixed_cost(bags[0], work)
-            fleet_vs_loop(bags, work)
+            fleet_vs_loop(bags, work, args.rounds)
         if 'rss' not in skip:
             peak_rss(work, args.big)
 
