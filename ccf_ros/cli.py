@@ -343,7 +343,7 @@ def cmd_params(args: argparse.Namespace) -> int:
 def cmd_fleet_run(args: argparse.Namespace) -> int:
     import os
 
-    from . import __version__
+    from .fleet.keys import code_version
     from .fleet.report import write_report
     from .fleet.run import RunConfig, run_fleet
     from .fleet.task import FleetOptions
@@ -357,7 +357,7 @@ def cmd_fleet_run(args: argparse.Namespace) -> int:
         # One file per IMU: bags of many robots (or of one, processed in parallel) would overwrite each other's.
         raise ParameterError(f'bias_file is one IMU\'s state, not a fleet\'s: remove it (got {merged["bias_file"]!r})')
     out = Path(args.output).absolute()
-    opts = FleetOptions(out=str(out), settings=merged, strict=strict, version=__version__, imu_topic=args.imu_topic,
+    opts = FleetOptions(out=str(out), settings=merged, strict=strict, version=code_version(), imu_topic=args.imu_topic,
                         mag_topic=args.mag_topic, no_mag=args.no_mag, write_bags=args.write_bags,
                         reference=args.reference, mask_topic=args.mask_topic, task_timeout_s=args.task_timeout,
                         # A test knob (not an option): every bag waits this long first, to kill a worker mid-bag.

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ccf_ros import __version__
 from ccf_ros.fleet.health import FLAGS, HealthAccumulator, judge
+from ccf_ros.fleet.keys import code_version
 from ccf_ros.fleet.task import FleetOptions, process_bag
 from ccf_ros.offline.simulate import SimData, generate, write_bag
 
@@ -65,7 +65,7 @@ def _opts(out: Path) -> FleetOptions:
     from ccf_ros.cli import build_parser, engine_settings
 
     merged, strict = engine_settings(build_parser().parse_args(['fleet', 'run', 'x', '-o', str(out)]))
-    return FleetOptions(out=str(out), settings=merged, strict=strict, version=__version__, reference='')
+    return FleetOptions(out=str(out), settings=merged, strict=strict, version=code_version(), reference='')
 
 
 @pytest.fixture(scope='module')

@@ -30,7 +30,7 @@ __all__ = ['RunConfig', 'RunSummary', 'connect', 'load_results', 'run_fleet', 'w
 #: Seconds to reach a scheduler before giving up (the command then exits 2 within 10 s).
 CONNECT_TIMEOUT_S = 6.0
 #: Columns of results.csv before the metrics.
-CSV_COLUMNS = ('bag', 'status', 'error', 'samples', 'health', 'flags', 'output')
+CSV_COLUMNS = ('bag', 'status', 'error', 'samples', 'health', 'flags', 'output', 'ccf_ros_version')
 
 
 class SchedulerUnreachable(CcfError):
@@ -136,21 +136,26 @@ def connect(scheduler: str | None, jobs: int) -> Iterator[Any]:
 
 
 def check_versions(client: Any, version: str) -> None:
-    """:class:`CcfError` naming the workers whose ccf_ros version is not ``version`` (or that lack ccf_ros)."""
+    """:class:`CcfError` naming the workers whose ccf_ros code version (:func:`.keys.code_version`) is not
+    ``version`` (or that lack ccf_ros)."""
 
     def worker_version() -> str:
         try:
-            from ccf_ros import __version__
+            from ccf_ros.fleet.keys import code_version
         except ImportError:
-            return 'none (ccf_ros not installed)'
-        return __version__
+            try:
+                from ccf_ros import __version__  # a ccf_ros from before code_version
+            except ImportError:
+                return 'none (ccf_ros not installed)'
+            return str(__version__)
+        return code_version()
 
     versions = client.run(worker_version)
     wrong = {w: v for w, v in versions.items() if v != version}
     if wrong:
         listed = ', '.join(f'{w} has {v}' for w, v in sorted(wrong.items()))
-        raise CcfError(f'workers run another ccf_ros than this driver ({version}): {listed}; install ccf_ros '
-                       f'{version} on every worker')
+        raise CcfError(f'workers run another ccf_ros than this driver ({version}): {listed}; install the '
+                       f'driver\'s ccf_ros (the same release and sources) on every worker')
     if not versions:
         raise CcfError('the Dask cluster has no workers')
 

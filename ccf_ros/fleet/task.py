@@ -354,11 +354,11 @@ def process_bag(bag: str, key: str, opts: FleetOptions) -> dict[str, Any]:
     A bag that cannot be read, has no IMU topic or makes the filter raise gives ``status: failed`` with a one-line
     ``error``. Raises :class:`VersionMismatch` if this worker's ccf_ros is not the driver's.
     """
-    from .. import __version__
+    from .keys import code_version
 
-    if __version__ != opts.version:
-        raise VersionMismatch(f'worker has ccf_ros {__version__}, the driver {opts.version}: install the same version '
-                              'on every worker')
+    if (mine := code_version()) != opts.version:
+        raise VersionMismatch(f'worker has ccf_ros {mine}, the driver {opts.version}: install the same version '
+                              '(the same code) on every worker')
     t0 = time.perf_counter()
     deadline = _Deadline(opts.task_timeout_s)
     try:
@@ -371,6 +371,7 @@ def process_bag(bag: str, key: str, opts: FleetOptions) -> dict[str, Any]:
     except Exception as err:  # a bad bag, or the filter raising: this bag fails, the others go on
         msg = ' '.join(str(err).split()) or type(err).__name__
         result = {'bag': bag, 'key': key, 'status': 'failed', 'error': f'{type(err).__name__}: {msg}'}
+    result['ccf_ros_version'] = mine
     result['wall_s'] = time.perf_counter() - t0
     path = result_path(opts.out, key)
     path.parent.mkdir(parents=True, exist_ok=True)
