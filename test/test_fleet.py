@@ -452,3 +452,28 @@ def test_bad_numeric_options_are_one_clear_error(bad, tmp_path, capsys, fleet_ba
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and bad[0] in err and bad[1] in err, err
     assert not (tmp_path / 'o').exists()
+
+
+def test_a_cancelled_future_that_raises_is_a_failed_record_too():
+    """Dask versions differ: Future.exception() of a cancelled task returns None in some and raises CancelledError in
+    others; either way the bag is failed with the reason."""
+    import concurrent.futures
+
+    from ccf_ros.fleet.run import _failed
+
+    class Raising:
+        status = 'lost'
+
+        def exception(self):
+            raise concurrent.futures.CancelledError('x')
+
+    class Cancelled:  # (status 'cancelled' is not even asked for its exception)
+        status = 'cancelled'
+
+        def exception(self):
+            raise AssertionError('not called')
+
+    for fut in (Raising(), Cancelled()):
+        rec = _failed('/b', 'k', fut)
+        assert rec == {'bag': '/b', 'key': 'k', 'status': 'failed',
+                       'error': 'Cancelled: the task was cancelled on the cluster before it finished'}
