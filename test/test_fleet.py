@@ -21,6 +21,7 @@ from ccf_ros import __version__
 from ccf_ros.cli import main
 from ccf_ros.errors import CcfError
 from ccf_ros.fleet.discover import discover
+from ccf_ros.fleet.keys import code_version
 from ccf_ros.offline.simulate import generate, write_bag
 
 BIN = Path(sys.executable).parent
@@ -409,6 +410,7 @@ def test_a_bag_that_kills_its_worker_is_recorded_failed_and_a_rerun_leaves_it(fl
         assert 'Traceback' not in stderr
         (rec,) = _records(out)
         assert rec['status'] == 'failed' and rec['error'].startswith('KilledWorker'), rec
+        assert rec['ccf_ros_version'] == code_version()
         assert json.loads((out / 'bags' / f'{key}.json').read_text())['status'] == 'failed'
         # A plain rerun: nothing to do (not even a connection: the scheduler named does not exist).
         again = _run([bag, '-o', str(out), '--scheduler', 'tcp://127.0.0.1:9', '--reference', ''])

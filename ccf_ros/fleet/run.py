@@ -282,7 +282,7 @@ def _submit_and_collect(client: Any, todo: list[tuple[str, str]], cfg: RunConfig
             if fut.status == 'finished':
                 rec = fut.result()
             else:
-                rec = _failed(bag, key, fut)
+                rec = {**_failed(bag, key, fut), 'ccf_ros_version': cfg.options.version}
                 if not rec['error'].startswith('Cancelled'):
                     # A bag that kills its workers (out of memory on every one, a crash in C) is recorded as
                     # failed like any other: a plain rerun does not resubmit it (--retry-failed does). A result an
