@@ -131,8 +131,8 @@ def _bare_read(bag: Path) -> int:
 
 def per_core(bag: Path, work: Path, repeats: int) -> None:
     import ccf_ros.offline.mcap as mcap
-    from ccf_ros import __version__
     from ccf_ros.cli import build_parser, engine_settings, make_engine
+    from ccf_ros.fleet.keys import code_version
     from ccf_ros.fleet.task import FleetOptions, process_bag
     from ccf_ros.offline.replay import replay
 
@@ -153,7 +153,7 @@ def per_core(bag: Path, work: Path, repeats: int) -> None:
         return replay(bag, work / 'new', make_engine(merged, strict), overwrite=True, progress=False).n_in
 
     def task(write: bool) -> int:
-        opts = FleetOptions(out=str(work / 'task'), settings=merged, strict=strict, version=__version__,
+        opts = FleetOptions(out=str(work / 'task'), settings=merged, strict=strict, version=code_version(),
                             write_bags=write, reference='')
         r = process_bag(str(bag), 'w' if write else 'h', opts)
         assert r['status'] == 'ok', r
@@ -236,11 +236,11 @@ def write_big_bag(path: Path, n: int, rate_hz: float = 200.0) -> None:
 # this benchmark (which holds a large bag's arrays while it writes it) reported the benchmark's own ~135 MB.
 RSS_SCRIPT = """
 import sys
-from ccf_ros import __version__
 from ccf_ros.cli import build_parser, engine_settings
+from ccf_ros.fleet.keys import code_version
 from ccf_ros.fleet.task import FleetOptions, process_bag
 merged, strict = engine_settings(build_parser().parse_args(['fleet', 'run', 'x', '-o', 'y']))
-opts = FleetOptions(out=sys.argv[2], settings=merged, strict=strict, version=__version__, reference='')
+opts = FleetOptions(out=sys.argv[2], settings=merged, strict=strict, version=code_version(), reference='')
 r = process_bag(sys.argv[1], 'rss-' + sys.argv[1].rstrip('/').rsplit('/', 1)[-1], opts)  # (a key per bag: exactly once)
 assert r['status'] == 'ok', r
 hwm = next(line for line in open('/proc/self/status') if line.startswith('VmHWM:'))

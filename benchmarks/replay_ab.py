@@ -23,7 +23,11 @@ import sys, time
 src, what, bag, out = sys.argv[1:5]
 import ccf_ros
 assert ccf_ros.__file__.startswith(src), (ccf_ros.__file__, src)
-from ccf_ros import __version__
+try:  # the version process_bag checks: code_version where the tree has it
+    from ccf_ros.fleet.keys import code_version
+    __version__ = code_version()
+except ImportError:
+    from ccf_ros import __version__
 from ccf_ros.cli import build_parser, engine_settings, make_engine
 from ccf_ros.fleet.task import FleetOptions, process_bag
 from ccf_ros.offline.bagio import open_bag

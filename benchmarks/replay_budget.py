@@ -46,6 +46,7 @@ def main() -> None:  # noqa: C901 (one flat list of stages, each a closure over 
 
     from ccf_ros.cli import build_parser, engine_settings, make_engine
     from ccf_ros.fleet.health import HealthAccumulator
+    from ccf_ros.fleet.keys import code_version
     from ccf_ros.fleet.task import FleetOptions, process_bag
     from ccf_ros.offline.bagio import connections_for, in_bag_order, open_bag
     from ccf_ros.offline.mcap import fast_batches
@@ -128,7 +129,7 @@ def main() -> None:  # noqa: C901 (one flat list of stages, each a closure over 
         replay(bag, work / 'r', make_engine(merged, strict), overwrite=True, progress=False)
 
     def task_health() -> None:
-        opts = FleetOptions(out=str(work / 't'), settings=merged, strict=strict, version=__import__('ccf_ros').__version__,
+        opts = FleetOptions(out=str(work / 't'), settings=merged, strict=strict, version=code_version(),
                             reference='')
         assert process_bag(str(bag), 'h', opts)['status'] == 'ok'
 

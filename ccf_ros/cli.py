@@ -341,30 +341,44 @@ def cmd_params(args: argparse.Namespace) -> int:
 
 
 def cmd_fleet_run(args: argparse.Namespace) -> int:
+    import math
     import os
 
-    from . import __version__
+    from .fleet.keys import code_version
     from .fleet.report import write_report
     from .fleet.run import RunConfig, run_fleet
     from .fleet.task import FleetOptions
 
     if args.jobs < 0:
         raise ParameterError(f'-j/--jobs must be >= 0, got {args.jobs}')
-    if not args.task_timeout >= 0:
-        raise ParameterError(f'--task-timeout must be >= 0 s, got {args.task_timeout!r}')
+    if args.retries < 0:
+        raise ParameterError(f'--retries must be >= 0, got {args.retries}')
+    # (finite: a timer of inf s cannot be started; NaN compares false with everything)
+    if not (args.task_timeout >= 0 and math.isfinite(args.task_timeout)):
+        raise ParameterError(f'--task-timeout must be a finite number >= 0 s, got {args.task_timeout!r}')
+    if not (args.wait_workers > 0 and math.isfinite(args.wait_workers)):
+        raise ParameterError(f'--wait-workers must be a finite number > 0 s, got {args.wait_workers!r}')
+    slow = os.environ.get('CCF_FLEET_SLOW_BAG_S', '0') or '0'
+    try:
+        slow_bag_s = float(slow)
+    except ValueError:
+        slow_bag_s = math.nan
+    if not (slow_bag_s >= 0 and math.isfinite(slow_bag_s)):
+        raise ParameterError(f'CCF_FLEET_SLOW_BAG_S must be a finite number >= 0 s, got {slow!r}')
     merged, strict = engine_settings(args)
     if merged.get('bias_file'):
         # One file per IMU: bags of many robots (or of one, processed in parallel) would overwrite each other's.
         raise ParameterError(f'bias_file is one IMU\'s state, not a fleet\'s: remove it (got {merged["bias_file"]!r})')
     out = Path(args.output).absolute()
-    opts = FleetOptions(out=str(out), settings=merged, strict=strict, version=__version__, imu_topic=args.imu_topic,
+    opts = FleetOptions(out=str(out), settings=merged, strict=strict, version=code_version(), imu_topic=args.imu_topic,
                         mag_topic=args.mag_topic, no_mag=args.no_mag, write_bags=args.write_bags,
                         reference=args.reference, mask_topic=args.mask_topic, task_timeout_s=args.task_timeout,
                         # A test knob (not an option): every bag waits this long first, to kill a worker mid-bag.
-                        slow_bag_s=float(os.environ.get('CCF_FLEET_SLOW_BAG_S', '0') or 0))
+                        slow_bag_s=slow_bag_s)
     cfg = RunConfig(inputs=args.inputs, out=out, options=opts, jobs=args.jobs,
                     scheduler=args.scheduler or os.environ.get('DASK_SCHEDULER_ADDRESS') or None,
                     retry_failed=args.retry_failed, force=args.force, retries=args.retries,
+                    worker_wait_s=args.wait_workers,
                     progress=False if args.quiet else None, device_regex=args.device)
     s = run_fleet(cfg)
     report = write_report(out, args.device)
@@ -514,7 +528,11 @@ def build_parser() -> argparse.ArgumentParser:
     fr.add_argument('--force', action='store_true', help='process every bag again')
     fr.add_argument('--retries', type=int, default=2, help='retries of a bag whose task errs on a worker')
     fr.add_argument('--task-timeout', type=float, default=0.0, metavar='S',
-                    help='a bag still running after S s fails (0: no limit; checked between blocks of samples)')
+                    help="a bag still running after S s fails (0: no limit; a timer ends it, wherever it is in Python "
+                    'code, reading included)')
+    fr.add_argument('--wait-workers', type=float, default=300.0, metavar='S',
+                    help='on a cluster with no workers yet (adaptive dask-jobqueue, Kubernetes): wait up to S s for '
+                    'the first one, then exit 2')
     fr.add_argument('--device', metavar='REGEX', help="report: group bags by REGEX's first group on the path (if not "
                     "given: the bag's parent folder)")
     fr.add_argument('--quiet', action='store_true', help='no progress bar')

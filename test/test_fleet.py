@@ -21,6 +21,7 @@ from ccf_ros import __version__
 from ccf_ros.cli import main
 from ccf_ros.errors import CcfError
 from ccf_ros.fleet.discover import discover
+from ccf_ros.fleet.keys import code_version
 from ccf_ros.offline.simulate import generate, write_bag
 
 BIN = Path(sys.executable).parent
@@ -46,17 +47,29 @@ def _stop(proc: subprocess.Popen) -> None:
 class Cluster:
     """A scheduler and worker processes on 127.0.0.1 (no nanny: a killed worker stays dead)."""
 
-    def __init__(self, log_dir: Path) -> None:
+    def __init__(self, log_dir: Path, scheduler_env: dict[str, str] | None = None) -> None:
         self.port = _free_port()
         self.address = f'tcp://127.0.0.1:{self.port}'
         self.log_dir = log_dir
         self.scheduler = self._spawn('scheduler', [str(BIN / 'dask'), 'scheduler', '--host', '127.0.0.1', '--port',
-                                                   str(self.port), '--no-dashboard'])
+                                                   str(self.port), '--no-dashboard'], scheduler_env)
         self.workers: list[subprocess.Popen] = []
 
-    def _spawn(self, name: str, cmd: list[str]) -> subprocess.Popen:
+    def _spawn(self, name: str, cmd: list[str], env: dict[str, str] | None = None) -> subprocess.Popen:
         log = (self.log_dir / f'{name}.log').open('w')
-        return subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        return subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
+                                env={**os.environ, **(env or {})})
+
+    def alive(self) -> dict[int, subprocess.Popen]:
+        """The running worker processes by pid."""
+        return {w.pid: w for w in self.workers if w.poll() is None}
+
+    def n_clients(self) -> int:
+        """Clients connected to the scheduler now (this one included)."""
+        from distributed import Client
+
+        with Client(self.address, timeout='30s', set_as_default=False) as c:
+            return int(c.run_on_scheduler(lambda dask_scheduler: len(dask_scheduler.clients)))
 
     def add_worker(self) -> subprocess.Popen:
         w = self._spawn(f'worker{len(self.workers)}', [
@@ -126,22 +139,33 @@ def _leftovers(out: Path) -> list[Path]:
     return [p for p in out.rglob('*') if p.name.startswith('.') or p.name.endswith(('.tmp', '.partial'))]
 
 
+def _attempts(out: Path) -> list[tuple[str, int]]:
+    """(key, worker pid) of every attempt at a bag so far: the markers tasks leave with CCF_FLEET_SLOW_BAG_S."""
+    return [(p.name.split('.')[0], int(p.name.split('.')[1])) for p in (out / 'attempts').glob('*')]
+
+
 def test_worker_killed_mid_run_every_bag_ok_exactly_once_then_resume(cluster, fleet_bags, tmp_path):
     out = tmp_path / 'out'
     cmd = [str(BIN / 'ccf'), 'fleet', 'run', str(fleet_bags), '-o', str(out), '--scheduler', cluster.address,
            '--quiet', '--reference', '']
-    # Every bag waits 2 s first: when the first result appears, both workers are inside their next bag.
+    # Every bag waits 2 s after its attempt's marker is written: a worker that holds a marker of a bag without a
+    # result is inside that bag.
     driver = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                               env={**os.environ, 'CCF_FLEET_SLOW_BAG_S': '2'})
     try:
         deadline = time.monotonic() + 120
-        while not list((out / 'bags').glob('*.json')):
+        while True:
             assert driver.poll() is None, driver.communicate()
-            assert time.monotonic() < deadline, 'no result appeared'
-            time.sleep(0.05)
+            assert time.monotonic() < deadline, 'no attempt started'
+            held = [(k, pid) for k, pid in _attempts(out)
+                    if pid in cluster.alive() and not (out / 'bags' / f'{k}.json').exists()]
+            if held:
+                break
+            time.sleep(0.02)
+        killed_key, pid = held[0]
         n_before = len(list((out / 'bags').glob('*.json')))
-        victim = cluster.workers[0]
-        os.kill(victim.pid, signal.SIGKILL)
+        victim = cluster.alive()[pid]
+        os.kill(pid, signal.SIGKILL)
         stdout, stderr = driver.communicate(timeout=180)
     finally:
         if driver.poll() is None:
@@ -149,10 +173,14 @@ def test_worker_killed_mid_run_every_bag_ok_exactly_once_then_resume(cluster, fl
     assert victim.wait(10) == -signal.SIGKILL
     assert n_before < N_BAGS  # killed mid-run
     assert driver.returncode == 0, stdout + stderr
+    # The killed attempt had no result; the bag was attempted again, and recorded once.
+    tries = [p for k, p in _attempts(out) if k == killed_key]
+    assert len(tries) >= 2 and pid in tries, tries
     recs = _records(out)
     assert len(recs) == N_BAGS and {r['status'] for r in recs} == {'ok'}
     assert sorted(r['bag'] for r in recs) == sorted(discover([str(fleet_bags)]))
     assert len(list((out / 'bags').glob('*.json'))) == N_BAGS  # one result file per bag
+    assert (out / 'bags' / f'{killed_key}.json').exists()
     assert _leftovers(out) == []
     # The csv has one row per bag too.
     assert len((out / 'results.csv').read_text().splitlines()) == N_BAGS + 1
@@ -310,3 +338,144 @@ def test_without_dask_one_line_says_what_to_install(monkeypatch, tmp_path, capsy
     assert main(['fleet', 'run', str(fleet_bags / 'robot_b'), '-o', str(tmp_path / 'o')]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "pip install 'ccf_ros[fleet]'" in err
+
+
+def _wait_attempt(out: Path, driver: subprocess.Popen, timeout_s: float = 120) -> tuple[str, int]:
+    """(key, worker pid) of the first attempt that started."""
+    deadline = time.monotonic() + timeout_s
+    while not (found := _attempts(out)):
+        assert driver.poll() is None, driver.communicate()
+        assert time.monotonic() < deadline, 'no attempt started'
+        time.sleep(0.02)
+    return found[0]
+
+
+def test_a_cluster_without_workers_is_waited_for_then_one_clear_error(fleet_bags, tmp_path):
+    """Adaptive clusters (dask-jobqueue, Kubernetes) start with no worker: the run waits for the first one, and
+    gives up after --wait-workers S with one line, exit 2."""
+    c = Cluster(tmp_path)
+    try:
+        base = c.n_clients()  # (the scheduler is up)
+        bag = str(fleet_bags / 'robot_b' / 'day3')
+        t0 = time.monotonic()
+        r = _run([bag, '-o', str(tmp_path / 'o1'), '--scheduler', c.address, '--wait-workers', '3'], timeout=60)
+        wall = time.monotonic() - t0
+        assert r.returncode == 2, r.stdout + r.stderr
+        lines = r.stderr.strip().splitlines()
+        assert len(lines) == 1 and f'no worker joined the Dask cluster at {c.address} within 3 s' in lines[0], lines
+        assert 3.0 <= wall < 30.0, wall
+        # A worker that joins while the run waits: the run goes on.
+        driver = subprocess.Popen([str(BIN / 'ccf'), 'fleet', 'run', bag, '-o', str(tmp_path / 'o2'), '--scheduler',
+                                   c.address, '--quiet', '--reference', ''], stdout=subprocess.PIPE,
+                                  stderr=subprocess.PIPE, text=True)
+        try:
+            deadline = time.monotonic() + 60
+            while c.n_clients() <= base:  # the driver is connected (and, with no worker, waiting)
+                assert driver.poll() is None, driver.communicate()
+                assert time.monotonic() < deadline, 'the driver did not connect'
+                time.sleep(0.1)
+            c.add_worker()
+            stdout, stderr = driver.communicate(timeout=120)
+        finally:
+            if driver.poll() is None:
+                driver.kill()
+        assert driver.returncode == 0, stdout + stderr
+        assert [x['status'] for x in _records(tmp_path / 'o2')] == ['ok']
+    finally:
+        c.close()
+
+
+def test_a_bag_that_kills_its_worker_is_recorded_failed_and_a_rerun_leaves_it(fleet_bags, tmp_path):
+    """A task lost with its worker beyond Dask's allowed failures (0 here: the first loss) is a failure known only
+    to the driver: it is written as the bag's result, so a plain rerun does not send the bag that kills workers to
+    the cluster again; --retry-failed does."""
+    c = Cluster(tmp_path, scheduler_env={'DASK_DISTRIBUTED__SCHEDULER__ALLOWED_FAILURES': '0'})
+    try:
+        c.add_worker()
+        c.wait_workers(1)
+        bag = str(fleet_bags / 'robot_b' / 'day3')
+        out = tmp_path / 'out'
+        driver = subprocess.Popen([str(BIN / 'ccf'), 'fleet', 'run', bag, '-o', str(out), '--scheduler', c.address,
+                                   '--quiet', '--reference', '', '--retries', '0'], stdout=subprocess.PIPE,
+                                  stderr=subprocess.PIPE, text=True, env={**os.environ, 'CCF_FLEET_SLOW_BAG_S': '30'})
+        try:
+            key, pid = _wait_attempt(out, driver)
+            assert pid in c.alive()
+            os.kill(pid, signal.SIGKILL)
+            stdout, stderr = driver.communicate(timeout=60)
+        finally:
+            if driver.poll() is None:
+                driver.kill()
+        assert driver.returncode == 1, stdout + stderr
+        assert 'Traceback' not in stderr
+        (rec,) = _records(out)
+        assert rec['status'] == 'failed' and rec['error'].startswith('KilledWorker'), rec
+        assert rec['ccf_ros_version'] == code_version()
+        assert json.loads((out / 'bags' / f'{key}.json').read_text())['status'] == 'failed'
+        # A plain rerun: nothing to do (not even a connection: the scheduler named does not exist).
+        again = _run([bag, '-o', str(out), '--scheduler', 'tcp://127.0.0.1:9', '--reference', ''])
+        assert again.returncode == 1 and '0 processed now' in again.stdout, again.stdout + again.stderr
+        c.add_worker()
+        retry = _run([bag, '-o', str(out), '--scheduler', c.address, '--reference', '', '--retry-failed'])
+        assert retry.returncode == 0 and '1 processed now' in retry.stdout, retry.stdout + retry.stderr
+        assert [x['status'] for x in _records(out)] == ['ok']
+    finally:
+        c.close()
+
+
+def test_a_task_cancelled_on_the_cluster_fails_its_bag_with_a_reason(cluster, fleet_bags, tmp_path):
+    """Another client cancelling the task (or a cluster shutting down): the bag is failed with a one-line reason,
+    no traceback; no result file is written (the cancellation is not the bag's fault: the next run does it)."""
+    from distributed import Client, Future
+
+    bag = str(fleet_bags / 'robot_a' / 'day1')
+    out = tmp_path / 'out'
+    driver = subprocess.Popen([str(BIN / 'ccf'), 'fleet', 'run', bag, '-o', str(out), '--scheduler', cluster.address,
+                               '--quiet', '--reference', ''], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                              text=True, env={**os.environ, 'CCF_FLEET_SLOW_BAG_S': '4'})
+    try:
+        key, _ = _wait_attempt(out, driver)
+        with Client(cluster.address, timeout='30s', set_as_default=False) as c:
+            c.cancel([Future(f'ccf-fleet-{key}', client=c)], force=True)
+        stdout, stderr = driver.communicate(timeout=60)
+    finally:
+        if driver.poll() is None:
+            driver.kill()
+    assert driver.returncode == 1, stdout + stderr
+    assert 'Traceback' not in stderr and f'failed: {bag}: Cancelled' in stderr, stderr
+    (rec,) = _records(out)
+    assert rec['status'] == 'failed' and rec['error'].startswith('Cancelled: '), rec
+
+
+@pytest.mark.parametrize('bad', [['--retries', '-1'], ['-j', '-2'], ['--task-timeout', '-1'],
+                                 ['--task-timeout', 'inf'], ['--task-timeout', 'nan'], ['--wait-workers', '0']])
+def test_bad_numeric_options_are_one_clear_error(bad, tmp_path, capsys, fleet_bags):
+    assert main(['fleet', 'run', str(fleet_bags / 'robot_b'), '-o', str(tmp_path / 'o'), *bad]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and bad[0] in err and bad[1] in err, err
+    assert not (tmp_path / 'o').exists()
+
+
+def test_a_cancelled_future_that_raises_is_a_failed_record_too():
+    """Dask versions differ: Future.exception() of a cancelled task returns None in some and raises CancelledError in
+    others; either way the bag is failed with the reason."""
+    import concurrent.futures
+
+    from ccf_ros.fleet.run import _failed
+
+    class Raising:
+        status = 'lost'
+
+        def exception(self):
+            raise concurrent.futures.CancelledError('x')
+
+    class Cancelled:  # (status 'cancelled' is not even asked for its exception)
+        status = 'cancelled'
+
+        def exception(self):
+            raise AssertionError('not called')
+
+    for fut in (Raising(), Cancelled()):
+        rec = _failed('/b', 'k', fut)
+        assert rec == {'bag': '/b', 'key': 'k', 'status': 'failed',
+                       'error': 'Cancelled: the task was cancelled on the cluster before it finished'}

@@ -1,14 +1,16 @@
 """What makes a bag's result current: the bag's identity (path, size, modification time), the settings and the
-ccf_ros version, hashed into the key that names its result file."""
+code (:func:`code_version`: the ccf_ros version plus a hash of its sources), hashed into the key that names its
+result file."""
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 from pathlib import Path
 from typing import Any
 
-__all__ = ['bag_identity', 'bag_key', 'settings_hash']
+__all__ = ['bag_identity', 'bag_key', 'code_version', 'settings_hash', 'source_fingerprint']
 
 
 def bag_identity(bag: str) -> tuple[str, int, int]:
@@ -22,6 +24,29 @@ def bag_identity(bag: str) -> tuple[str, int, int]:
     return str(p.absolute()), st.st_size, st.st_mtime_ns
 
 
+def source_fingerprint(root: str | Path) -> str:
+    """A short hash (12 hex digits) of the ``.py`` files under the package folder ``root``: their paths relative to
+    it and their bytes. Any edit of the code (an upgrade, another commit on a worker) changes it."""
+    root = Path(root)
+    h = hashlib.sha256()
+    for f in sorted(root.rglob('*.py'), key=lambda p: p.relative_to(root).as_posix()):
+        data = f.read_bytes()
+        h.update(f'{f.relative_to(root).as_posix()}\0{len(data)}\0'.encode())
+        h.update(data)
+    return h.hexdigest()[:12]
+
+
+@functools.cache
+def code_version() -> str:
+    """The code a result was computed with: ``__version__`` plus :func:`source_fingerprint` of this installed
+    ccf_ros, e.g. ``0.1.0+1a2b3c4d5e6f`` (read once per process: ~1 MB of sources, a few ms). It goes into every
+    key and is what driver and workers must share: a fixed ``__version__`` alone would keep results of older code
+    on a rerun after an upgrade, and let workers on another commit pass the check."""
+    from .. import __version__
+
+    return f'{__version__}+{source_fingerprint(Path(__file__).resolve().parents[1])}'
+
+
 def settings_hash(settings: dict[str, Any]) -> str:
     """A stable hash of everything that changes a bag's result: engine settings, topics, outputs."""
     text = json.dumps(settings, sort_keys=True, default=str)
@@ -29,7 +54,8 @@ def settings_hash(settings: dict[str, Any]) -> str:
 
 
 def bag_key(bag: str, settings: str, version: str) -> str:
-    """The key of a bag's result: changes when the bag, the settings or the version change."""
+    """The key of a bag's result: changes when the bag, the settings or the code (``version``: :func:`code_version`)
+    change."""
     try:
         ident = bag_identity(bag)
     except OSError:

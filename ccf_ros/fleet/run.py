@@ -23,14 +23,17 @@ from typing import Any
 from ..errors import CcfError
 from .discover import discover
 from .keys import bag_key, settings_hash
-from .task import BAGS_DIR, FleetOptions, VersionMismatch, process_bag, result_path
+from .task import BAGS_DIR, FleetOptions, VersionMismatch, process_bag, result_path, write_first
 
 __all__ = ['RunConfig', 'RunSummary', 'connect', 'load_results', 'run_fleet', 'write_tables']
 
 #: Seconds to reach a scheduler before giving up (the command then exits 2 within 10 s).
 CONNECT_TIMEOUT_S = 6.0
+#: Seconds to wait for a first worker on a cluster that has none yet (adaptive dask-jobqueue or Kubernetes clusters
+#: start workers on demand: a batch job may wait in its queue); ``--wait-workers``.
+WORKER_WAIT_S = 300.0
 #: Columns of results.csv before the metrics.
-CSV_COLUMNS = ('bag', 'status', 'error', 'samples', 'health', 'flags', 'output')
+CSV_COLUMNS = ('bag', 'status', 'error', 'samples', 'health', 'flags', 'output', 'ccf_ros_version')
 
 
 class SchedulerUnreachable(CcfError):
@@ -49,6 +52,7 @@ class RunConfig:
     retry_failed: bool = False
     force: bool = False
     retries: int = 2
+    worker_wait_s: float = WORKER_WAIT_S
     progress: bool | None = None
     device_regex: str | None = None
 
@@ -135,22 +139,38 @@ def connect(scheduler: str | None, jobs: int) -> Iterator[Any]:
         yield client
 
 
+def wait_for_workers(client: Any, timeout_s: float, where: str) -> None:
+    """Return once the cluster has a worker; :class:`CcfError` if none joined within ``timeout_s``."""
+    if client.scheduler_info().get('workers'):
+        return
+    try:
+        client.wait_for_workers(1, timeout=timeout_s)
+    except TimeoutError as err:  # (also asyncio's and Dask's: the same class since Python 3.11)
+        raise CcfError(f'no worker joined the Dask cluster at {where} within {timeout_s:g} s (start workers, or '
+                       f'--wait-workers S for a cluster that takes longer)') from err
+
+
 def check_versions(client: Any, version: str) -> None:
-    """:class:`CcfError` naming the workers whose ccf_ros version is not ``version`` (or that lack ccf_ros)."""
+    """:class:`CcfError` naming the workers whose ccf_ros code version (:func:`.keys.code_version`) is not
+    ``version`` (or that lack ccf_ros)."""
 
     def worker_version() -> str:
         try:
-            from ccf_ros import __version__
+            from ccf_ros.fleet.keys import code_version
         except ImportError:
-            return 'none (ccf_ros not installed)'
-        return __version__
+            try:
+                from ccf_ros import __version__  # a ccf_ros from before code_version
+            except ImportError:
+                return 'none (ccf_ros not installed)'
+            return str(__version__)
+        return code_version()
 
     versions = client.run(worker_version)
     wrong = {w: v for w, v in versions.items() if v != version}
     if wrong:
         listed = ', '.join(f'{w} has {v}' for w, v in sorted(wrong.items()))
-        raise CcfError(f'workers run another ccf_ros than this driver ({version}): {listed}; install ccf_ros '
-                       f'{version} on every worker')
+        raise CcfError(f'workers run another ccf_ros than this driver ({version}): {listed}; install the '
+                       f'driver\'s ccf_ros (the same release and sources) on every worker')
     if not versions:
         raise CcfError('the Dask cluster has no workers')
 
@@ -222,6 +242,26 @@ def write_tables(out: Path, records: list[dict[str, Any]]) -> None:
         tmp.replace(out / name)
 
 
+def _failed(bag: str, key: str, fut: Any) -> dict[str, Any]:
+    """The record of a bag whose task did not return: cancelled (by another client, or the cluster shutting down),
+    its workers lost beyond Dask's ``allowed-failures`` (``KilledWorker``), or a task error outside the bag's own
+    handling. :class:`CcfError` for workers of another version."""
+    import asyncio
+    import concurrent.futures
+
+    try:
+        err = None if fut.status == 'cancelled' else fut.exception()
+    except (concurrent.futures.CancelledError, asyncio.CancelledError):
+        err = None
+    if err is None:
+        reason = 'Cancelled: the task was cancelled on the cluster before it finished'
+    elif isinstance(err, VersionMismatch):
+        raise CcfError(str(err))
+    else:
+        reason = f'{type(err).__name__}: {" ".join(str(err).split())}'
+    return {'bag': bag, 'key': key, 'status': 'failed', 'error': reason}
+
+
 def _submit_and_collect(client: Any, todo: list[tuple[str, str]], cfg: RunConfig, summary: RunSummary,
                         results: dict[str, dict[str, Any]]) -> None:
     from distributed import as_completed
@@ -242,12 +282,13 @@ def _submit_and_collect(client: Any, todo: list[tuple[str, str]], cfg: RunConfig
             if fut.status == 'finished':
                 rec = fut.result()
             else:
-                err = fut.exception()
-                if isinstance(err, VersionMismatch):
-                    raise CcfError(str(err))
-                # Lost workers beyond the retries, or a task error outside the bag's own handling.
-                rec = {'bag': bag, 'key': key, 'status': 'failed',
-                       'error': f'{type(err).__name__}: {" ".join(str(err).split())}'}
+                rec = {**_failed(bag, key, fut), 'ccf_ros_version': cfg.options.version}
+                if not rec['error'].startswith('Cancelled'):
+                    # A bag that kills its workers (out of memory on every one, a crash in C) is recorded as
+                    # failed like any other: a plain rerun does not resubmit it (--retry-failed does). A result an
+                    # attempt wrote first is kept (exactly once); a cancelled task is not the bag's fault: no file,
+                    # the next run does it.
+                    _record_failure(cfg.out, rec)
             results[key] = rec
             samples += int(rec.get('samples', 0) or 0)
             failed += rec['status'] != 'ok'
@@ -256,6 +297,13 @@ def _submit_and_collect(client: Any, todo: list[tuple[str, str]], cfg: RunConfig
             bar.update(1)
     finally:
         bar.close()
+
+
+def _record_failure(out: Path, rec: dict[str, Any]) -> None:
+    """Write a failure known only here as the bag's result file (unless an attempt's result is there already)."""
+    path = result_path(out.absolute(), rec['key'])
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_first(path, json.dumps(rec))
 
 
 def run_fleet(cfg: RunConfig) -> RunSummary:
@@ -281,6 +329,7 @@ def run_fleet(cfg: RunConfig) -> RunSummary:
             summary.n_done_before += 1
     if todo:
         with connect(cfg.scheduler, cfg.jobs) as client:
+            wait_for_workers(client, cfg.worker_wait_s, cfg.scheduler or 'the local cluster')
             check_versions(client, opts.version)
             # --force / --retry-failed: the old results go once the cluster is there (an unreachable scheduler or
             # workers of another version leave them as they were).

@@ -16,7 +16,7 @@ from typing import Any
 
 from .health import HealthAccumulator, judge
 
-__all__ = ['BagTimeout', 'FleetOptions', 'VersionMismatch', 'filter_metrics', 'process_bag', 'result_path']
+__all__ = ['BagTimeout', 'FleetOptions', 'VersionMismatch', 'filter_metrics', 'process_bag', 'result_path', 'write_first']
 
 #: Where a bag's result and output bag go, under the run's output folder.
 BAGS_DIR = 'bags'
@@ -52,7 +52,8 @@ class FleetOptions:
     reference: str = '/ground_truth/pose'
     mask_topic: str = '/ground_truth/moving'
     task_timeout_s: float = 0.0  # 0: none
-    #: seconds each bag is held back before it starts (tests: a bag slow enough to kill its worker mid-run)
+    #: seconds each bag is held back before it starts (tests: a bag slow enough to kill its worker mid-run); when
+    #: set, each attempt also leaves a marker OUT/attempts/KEY.PID.RANDOM
     slow_bag_s: float = 0.0
 
 
@@ -76,7 +77,7 @@ def _write_atomic(path: Path, text: str) -> None:
         raise
 
 
-def _write_first(path: Path, text: str) -> bool:
+def write_first(path: Path, text: str) -> bool:
     """Like :func:`_write_atomic`, but only if ``path`` does not exist yet (a hard link fails then): when Dask runs a
     task twice (a worker lost after it finished, before its result was gathered; work stealing), the first complete
     result stays. Returns whether this one was written."""
@@ -316,6 +317,11 @@ def _run(bag: str, key: str, opts: FleetOptions, deadline: _Deadline) -> dict[st
     engine = make_engine(opts.settings, opts.strict)
     health = HealthAccumulator()
     if opts.slow_bag_s:
+        # (Tests only.) One marker per attempt, OUT/attempts/KEY.PID.RANDOM: which worker process holds which bag,
+        # and how many attempts a bag had.
+        mark = Path(opts.out) / 'attempts' / f'{key}.{os.getpid()}.{uuid.uuid4().hex[:8]}'
+        mark.parent.mkdir(parents=True, exist_ok=True)
+        mark.touch()
         time.sleep(opts.slow_bag_s)
     has_ref = bool(opts.reference) and _has_reference(bag, opts.reference)
     record: dict[str, Any] = {}
@@ -354,11 +360,11 @@ def process_bag(bag: str, key: str, opts: FleetOptions) -> dict[str, Any]:
     A bag that cannot be read, has no IMU topic or makes the filter raise gives ``status: failed`` with a one-line
     ``error``. Raises :class:`VersionMismatch` if this worker's ccf_ros is not the driver's.
     """
-    from .. import __version__
+    from .keys import code_version
 
-    if __version__ != opts.version:
-        raise VersionMismatch(f'worker has ccf_ros {__version__}, the driver {opts.version}: install the same version '
-                              'on every worker')
+    if (mine := code_version()) != opts.version:
+        raise VersionMismatch(f'worker has ccf_ros {mine}, the driver {opts.version}: install the same version '
+                              '(the same code) on every worker')
     t0 = time.perf_counter()
     deadline = _Deadline(opts.task_timeout_s)
     try:
@@ -371,10 +377,11 @@ def process_bag(bag: str, key: str, opts: FleetOptions) -> dict[str, Any]:
     except Exception as err:  # a bad bag, or the filter raising: this bag fails, the others go on
         msg = ' '.join(str(err).split()) or type(err).__name__
         result = {'bag': bag, 'key': key, 'status': 'failed', 'error': f'{type(err).__name__}: {msg}'}
+    result['ccf_ros_version'] = mine
     result['wall_s'] = time.perf_counter() - t0
     path = result_path(opts.out, key)
     path.parent.mkdir(parents=True, exist_ok=True)
-    if not _write_first(path, json.dumps(result, allow_nan=True)):
+    if not write_first(path, json.dumps(result, allow_nan=True)):
         try:
             first: dict[str, Any] = json.loads(path.read_text())
             return first  # exactly once: the result already recorded is the bag's
