@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 from .core.base import ANSWERED_BELOW, OrientationFilter, Status, acc_usable, mag_usable
-from .core.ccf import GRAVITY_M_S2, CcfParams
+from .core.ccf import GRAVITY_M_S2, CcfParams, QuaternionCcf
 from .core.hard_iron import HardIronEstimator, HardIronStatus
 from .core.pairing import MagPairer
 from .core.quaternion import (
@@ -150,6 +150,8 @@ class ImuEngine:
         self._pending_heading: float | None = None
         #: the motion hint expires at this stamp (s; inf: no hint in force)
         self._hint_until = math.inf
+        #: the filter whose gyro range the engine checks on the raw readings (:meth:`_sync_raw_clip`; None: none)
+        self._clip_filter: QuaternionCcf | None = None
         self.set_settings(self.settings)
         if self.settings.bias_file:
             self.load_state(self.settings.bias_file)
@@ -170,6 +172,7 @@ class ImuEngine:
         self.output_rotation = self._rot
         # None when there is nothing to do: the common case costs one test per sample.
         self._reframe = None if self._rot is None and off == (0.0, 0.0, 0.0) else (rot, self._gyro_off)
+        self._sync_raw_clip()
         # Magnetometer: m_out = R_mount R_mag S (m_raw - b), one matrix.
         s = matmul(rot, matmul(settings.mag_matrix, settings.mag_soft_iron))
         self._mag_cal = None if (bx == by == bz == 0.0 and is_identity(s)) else (bx, by, bz, *s)
@@ -189,6 +192,14 @@ class ImuEngine:
         else:
             self.hard_iron.memory_rad = settings.mag_online_memory_rad
 
+    def _sync_raw_clip(self) -> None:
+        """``gyro_range_rad_s`` is the sensor's range, per axis of its raw readings: when the engine rotates the gyro
+        or subtracts an offset, the filter's input is no raw reading, and the engine checks the raw one for it."""
+        f = self.filter
+        self._clip_filter = f if self._reframe is not None and isinstance(f, QuaternionCcf) else None
+        if isinstance(f, QuaternionCcf):
+            f.raw_clip_check = self._clip_filter is not None
+
     def _bank_counts(self) -> None:
         """Add the filter's counters to the engine's totals (before the filter's are reset or it is replaced)."""
         f = self.filter
@@ -202,6 +213,7 @@ class ImuEngine:
         """Run ``filt`` from the next sample on (a fresh estimate); the counters keep counting."""
         self._bank_counts()
         self.filter = filt
+        self._sync_raw_clip()
         self._n_far_back = 0
         self._t_ahead = None
         self._t_const = 0.0
@@ -278,6 +290,12 @@ class ImuEngine:
         """
         self.n_in += 1
         if self._reframe is not None:
+            cf = self._clip_filter
+            if cf is not None:
+                # The range is the sensor's: its raw reading, per axis (the filter runs its recovery on the verdict).
+                clip = cf.clip_threshold_rad_s
+                gx, gy, gz = gyr
+                cf.gyro_clipped_raw = gx >= clip or gx <= -clip or gy >= clip or gy <= -clip or gz >= clip or gz <= -clip
             gyr, acc = self._to_output_frame(gyr, acc)
         t_last = self._t_last
         if t_s - t_last > JUMP_AHEAD_S and t_last > -math.inf and t_s - t_last > self.filter.params.max_dt_s:
