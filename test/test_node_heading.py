@@ -52,6 +52,38 @@ def test_set_pose_sets_the_heading_as_the_engine_does(context, inputs, use_mag, 
         h.close()
 
 
+def test_set_pose_before_the_imu_streams_is_kept_and_its_quaternion_normalised(context, inputs):
+    """A bring-up publishes the initial pose before the IMU streams: it is applied when the filter initialises (was:
+    dropped). The orientation is normalised before its yaw is taken: {z: 1, w: 1} is 90° (was: 116.6°), and a
+    quaternion of norm 3 for 1 rad is 1 rad (was: 1.96 rad)."""
+    node = reliable_node(context, use_mag=False)
+    h = Harness(context, node)
+    try:
+        pub = h.io.create_publisher(PoseWithCovarianceStamped, 'set_pose', 10)
+        h.wait_connected()
+        assert h.spin_until(lambda: pub.get_subscription_count() > 0)
+
+        def send(z, w):
+            pose = PoseWithCovarianceStamped()
+            pose.pose.pose.orientation.z, pose.pose.pose.orientation.w = z, w
+            n = node.n_set_pose
+            pub.publish(pose)
+            assert h.spin_until(lambda: node.n_set_pose == n + 1), 'set_pose not received'
+
+        send(1.0, 1.0)
+        first, second = inputs[:800], inputs[800:1200]
+        h.feed(first, 400)
+        yaws = [rpy_of(from_xyzw(*q))[2] for q in _xyzw(h.out[:400])]
+        assert yaws[0] == pytest.approx(0.5 * math.pi, abs=1e-9)
+        # (measured at most 0.005 rad off over the 2 s: the simulated motion)
+        assert max(abs(y - 0.5 * math.pi) for y in yaws) < 0.006
+        send(3.0 * math.sin(0.5), 3.0 * math.cos(0.5))
+        h.feed(second, 600)
+        assert rpy_of(from_xyzw(*_xyzw(h.out[400:401])[0]))[2] == pytest.approx(1.0, abs=0.01)  # one sample after
+    finally:
+        h.close()
+
+
 @pytest.mark.parametrize('msg_type', [Odometry, TwistStamped])
 def test_motion_hint_topic_is_subscribed_with_its_graph_type(context, msg_type):
     node = reliable_node(context, motion_hint_topic='odom')

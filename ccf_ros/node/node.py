@@ -391,18 +391,34 @@ class CcfNode(Node):
         self.engine.on_motion_hint(stamp_s(header), still, self._hint_timeout)
 
     def _on_set_pose(self, msg: PoseWithCovarianceStamped) -> None:
-        """Set the output's heading to the yaw of the pose's orientation (roll, pitch and position ignored)."""
+        """Set the output's heading to the yaw of the pose's orientation (roll, pitch and position ignored); the
+        quaternion is normalised first. Before the filter initialised (a bring-up publishes the initial pose before
+        the IMU streams) the heading is kept and applied when it does."""
         o = msg.pose.pose.orientation
         n2 = o.x * o.x + o.y * o.y + o.z * o.z + o.w * o.w
         if not (math.isfinite(n2) and n2 > 1e-6):
             self.get_logger().warning(f'set_pose ignored: orientation {o.x, o.y, o.z, o.w} is not a rotation')
             return
-        yaw = rpy_of(from_xyzw(o.x, o.y, o.z, o.w))[2]
+        n = 1.0 / math.sqrt(n2)
+        yaw = rpy_of(from_xyzw(o.x * n, o.y * n, o.z * n, o.w * n))[2]
         # Samples held for their magnetometer sample came before the pose: answered with the old heading.
         self._answer_all(self.sync.flush(time.monotonic()))
+        replaced = self.engine.pending_pose
         how = self.engine.set_heading(yaw)
         self.n_set_pose += 1
-        self.get_logger().info(f'set_pose: heading {yaw:.4f} rad ({how})')
+        if how == 'pending':
+            self.get_logger().info(f'set_pose: heading {yaw:.4f} rad kept until the filter initialises' + (
+                f' (replaces the pending {replaced:.4f} rad)' if replaced is not None else ''))
+        else:
+            self.get_logger().info(f'set_pose: heading {yaw:.4f} rad ({how})')
+
+    def _drop_pending_pose(self, why: str) -> None:
+        """A set_pose heading still waiting for the filter to initialise is lost (``why``): one warning."""
+        engine = getattr(self, 'engine', None)
+        if engine is not None and engine.pending_pose is not None:
+            self.get_logger().warning(f'set_pose heading {engine.pending_pose:.4f} rad lost: {why} before the '
+                                      'filter initialised (no IMU sample with a usable accelerometer)')
+            engine.pending_pose = None
 
     def _input_qos(self) -> QoSProfile:
         """A new input profile per subscription (rclpy writes the overrides into the profile it is given)."""
@@ -779,6 +795,7 @@ class CcfNode(Node):
 
     def destroy_node(self) -> None:
         """Write bias_file (shutdown), then destroy the node."""
+        self._drop_pending_pose('the node shuts down')
         self.save_state()
         super().destroy_node()
 
