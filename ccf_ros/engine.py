@@ -873,11 +873,15 @@ class ImuEngine:
         if yaw is not None and not f.flags.heading_absolute:
             f.set_heading(yaw)
 
-    def on_motion_hint(self, t_s: float, still: bool, timeout_s: float = 0.5) -> None:
+    def on_motion_hint(self, t_s: float, still: bool, timeout_s: float = 0.5) -> float:
         """An outside motion hint stamped ``t_s`` (s): ``still`` or moving. The filter learns the gyro bias at rest
-        only while the latest hint says still; a hint counts until ``timeout_s`` after its stamp (IMU stamps)."""
+        only while the latest hint says still; a hint counts until ``timeout_s`` after its stamp, on the IMU's
+        clock (its header stamps). Returns the latest IMU stamp minus ``t_s`` (s; NaN before the first IMU
+        sample): beyond ``timeout_s`` the hint expires at the next IMU sample, below ``-timeout_s`` it counts until
+        the IMU stamps reach it (a clock other than the IMU's: the adapter warns)."""
         self.filter.still_hint = still
         self._hint_until = t_s + timeout_s
+        return self._t_last - t_s if self._t_last > -math.inf else math.nan
 
     def _expire_hint(self) -> None:
         self.filter.still_hint = None

@@ -232,3 +232,15 @@ def test_set_heading_in_9d_before_the_magnetometer_gave_north_is_kept_once_it_do
     assert np.abs(err[400:]).max() < 1.85, np.abs(err[400:]).max()
     eng.reset()  # the offset goes with the estimate
     assert eng.heading_offset_rad == 0.0
+
+
+def test_a_hint_tells_how_far_its_stamp_is_from_the_imu_clock():
+    """What the node warns about: a hint stamped 0 (a driver that does not stamp) is 1.7e9 s behind and expires at the
+    next IMU sample."""
+    eng = ImuEngine(*build({'use_mag': False}, strict=False))
+    assert math.isnan(eng.on_motion_hint(5.0, still=False))  # no IMU sample yet: no judgement
+    eng.on_imu(1.7e9, (0.0, 0.0, 0.0), (0.0, 0.0, 9.8))
+    assert eng.on_motion_hint(1.7e9 - 0.1, still=False) == pytest.approx(0.1)
+    assert eng.on_motion_hint(0.0, still=False) == 1.7e9
+    eng.on_imu(1.7e9 + 0.01, (0.0, 0.0, 0.0), (0.0, 0.0, 9.8))
+    assert eng.filter.still_hint is None

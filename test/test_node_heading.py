@@ -108,3 +108,38 @@ def test_motion_hint_topic_is_subscribed_with_its_graph_type(context, msg_type):
         assert h.spin_until(lambda: node.engine.filter.still_hint is True)
     finally:
         h.close()
+
+
+def test_motion_hint_with_a_non_finite_twist_is_ignored_and_a_far_stamp_is_counted(context, inputs):
+    """A NaN twist says nothing (was: read as "moving"); a hint stamped far from the IMU's clock (0: a driver that
+    does not stamp) is counted and warned about (it expires at the next IMU sample)."""
+    node = reliable_node(context, motion_hint_topic='odom', use_mag=False)
+    h = Harness(context, node)
+    try:
+        pub = h.io.create_publisher(TwistStamped, '/odom', 10)
+        assert h.spin_until(lambda: node.sub_hint is not None, 10.0), 'motion hint not subscribed'
+        assert h.spin_until(lambda: pub.get_subscription_count() > 0)
+        h.wait_connected()
+        first = inputs[:200]
+        h.feed(first, sum(topic == '/imu/data_raw' for topic, _ in first))
+        stamp = next(m for topic, m in reversed(first) if topic == '/imu/data_raw').header.stamp
+
+        def send(turn_rad_s, sec, nanosec=0):
+            msg = TwistStamped()
+            msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
+            msg.twist.angular.z = turn_rad_s
+            pub.publish(msg)
+
+        send(math.nan, stamp.sec, stamp.nanosec)
+        assert h.spin_until(lambda: getattr(node, 'n_hints_ignored', 0) == 1
+                            or node.engine.filter.still_hint is not None), 'non-finite hint not seen'
+        assert node.engine.filter.still_hint is None  # (the old code: False, "moving")
+        assert node.n_hints_ignored == 1
+        send(0.0, stamp.sec, stamp.nanosec)
+        assert h.spin_until(lambda: node.engine.filter.still_hint is True)
+        assert getattr(node, 'n_hints_far', 0) == 0
+        send(math.radians(1.0), 0)
+        assert h.spin_until(lambda: getattr(node, 'n_hints_far', 0) == 1), 'hint stamped 0 not counted'
+        assert node.engine.filter.still_hint is False and node.n_hints_ignored == 1
+    finally:
+        h.close()
