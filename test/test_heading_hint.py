@@ -244,3 +244,32 @@ def test_a_hint_tells_how_far_its_stamp_is_from_the_imu_clock():
     assert eng.on_motion_hint(0.0, still=False) == 1.7e9
     eng.on_imu(1.7e9 + 0.01, (0.0, 0.0, 0.0), (0.0, 0.0, 9.8))
     assert eng.filter.still_hint is None
+
+
+def test_a_slow_turn_longer_than_rest_relearn_s_without_a_hint_is_learnt_as_bias():
+    """The limit of an IMU alone (6-D): a steady 1°/s turn with a still accelerometer looks like a rest with another
+    bias; after REST_RELEARN_S (120 s) of it the rest learns it, since a bias learnt wrongly must not block later
+    rests. Pinned: 200 s at 1°/s after a 5 s rest, no hint: learnt 120 s after the gyro became steady (the rest
+    began at 0 s), the yaw-bias error is then the whole turn; with a "moving" hint it never is."""
+    from ccf_ros.core.ccf import REST_RELEARN_S
+
+    t, gyr, acc, _, bias, moving = slow_turn(turn_s=200.0)
+    rel = t - t[0]
+    errs = {}
+    for hint in (False, True):
+        eng = ImuEngine(*build({'use_mag': False}, strict=False))
+        err = np.empty(len(t))
+        for i in range(len(t)):
+            if hint and i % 2 == 0:  # odometry at 50 Hz
+                eng.on_motion_hint(t[i], still=not moving[i])
+            eng.on_imu(t[i], tuple(gyr[i]), tuple(acc[i]))
+            err[i] = math.degrees(eng.filter.gyro_bias[2] - bias[i][2])
+        errs[hint] = np.abs(err)
+    assert REST_RELEARN_S == 120.0  # (the figure doc/node.md gives)
+    before = (rel > 10.0) & (rel < 119.0)
+    after = rel > 122.0
+    # Measured without the hint: 0.065°/s up to 119 s, at least 0.94°/s from 122 s on (first above 0.5 at 120.3 s).
+    assert errs[False][before].max() < 0.08, errs[False][before].max()
+    assert errs[False][after].min() > 0.8, errs[False][after].min()
+    # With the hint: at most 0.029°/s throughout.
+    assert errs[True][rel > 10.0].max() < 0.035, errs[True][rel > 10.0].max()
