@@ -366,7 +366,8 @@ class ImuEngine:
         if self._stateless:
             return self._stateless_output(t_s, gyr, acc, mag)
         status = f.update(t_s, gyr, acc, mag)
-        if self._heading_todo and f.initialized:
+        if (self._pending_heading is not None or self.pending_pose is not None or self._anchor is not None) \
+                and f.initialized:  # (written out: _heading_todo's call costs more than its three tests)
             self._heading_step(t_s, gyr)
         if status >= ANSWERED_BELOW:
             if not f.initialized:

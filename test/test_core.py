@@ -302,9 +302,9 @@ def test_jittered_stamps_reuse_the_gains_of_their_bin(monkeypatch):
     for kind, cls in (('sample', ccf_module._Coefficients), ('block', ccf_module._BlockCoefficients)):
         make = cls.of.__func__
 
-        def counted(c, p, key, kind=kind, make=make):
+        def counted(c, p, key, *more, kind=kind, make=make):
             calls[kind] += 1
-            return make(c, p, key)
+            return make(c, p, key, *more)
 
         monkeypatch.setattr(cls, 'of', classmethod(counted))
     d = generate(120.0, 40.0, seed=1)
