@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 from .core.base import ANSWERED_BELOW, OrientationFilter, Status, acc_usable, mag_usable
-from .core.ccf import GRAVITY_M_S2, CcfParams
+from .core.ccf import GRAVITY_M_S2, CcfParams, QuaternionCcf
 from .core.hard_iron import HardIronEstimator, HardIronStatus
 from .core.pairing import MagPairer
 from .core.quaternion import (
@@ -45,6 +45,9 @@ STALE_SHARE_GAIN = 0.01
 JUMP_AHEAD_S = 1.0
 #: A state file (``bias_file``) older than this (s) is not used: the sensor may have changed since.
 STATE_MAX_AGE_S = 30 * 86400.0
+#: A heading set in 9-D before the magnetometer gave north is carried by the gyro this long (s) after it does, while
+#: the filter acquires north, for filters without ``tau_mag_s`` (see :meth:`ImuEngine.set_heading`).
+ANCHOR_S = 15.0
 
 Vec3 = tuple[float, float, float]
 #: Three columns (x, y, z) of N floats each.
@@ -103,6 +106,26 @@ class ChunkAnswers:
     mag_rejected: list[bool] | None
 
 
+class _HeadingAnchor:
+    """A heading set in 9-D before the magnetometer gave north (:meth:`ImuEngine.set_heading`): from the first
+    north-referenced sample on, the gyro carries the set heading (``yaw``, rad, the filter's world frame) for
+    ``settle_s`` while the filter acquires north, and the output offset is their difference."""
+
+    __slots__ = ('base', 'q', 'settle_s', 't', 'until', 'yaw')
+
+    def __init__(self, base: float, settle_s: float, q: tuple[float, float, float, float], t_s: float) -> None:
+        #: the output offset when the heading was set, rad
+        self.base = base
+        self.settle_s = settle_s
+        #: the filter's orientation (world frame, [w, x, y, z]) after the latest sample before north, and its time, s
+        self.q = q
+        self.t = t_s
+        #: the set heading carried by the gyro, rad (None: north not given yet)
+        self.yaw: float | None = None
+        #: the anchor ends at this time, s (the offset stays)
+        self.until = math.inf
+
+
 class ImuEngine:
     """Magnetometer calibration and pairing + filter + output shaping for a stream of IMU/magnetometer messages."""
 
@@ -148,8 +171,14 @@ class ImuEngine:
         self.heading_offset_rad = 0.0
         #: a heading to give the filter once it initialises without a magnetometer heading (restore_heading)
         self._pending_heading: float | None = None
+        #: a heading set (set_heading) before the filter initialised: applied as set_heading once it does
+        self.pending_pose: float | None = None
+        #: a heading set in 9-D before the magnetometer gave north (None: none; see _HeadingAnchor)
+        self._anchor: _HeadingAnchor | None = None
         #: the motion hint expires at this stamp (s; inf: no hint in force)
         self._hint_until = math.inf
+        #: the filter whose gyro range the engine checks on the raw readings (:meth:`_sync_raw_clip`; None: none)
+        self._clip_filter: QuaternionCcf | None = None
         self.set_settings(self.settings)
         if self.settings.bias_file:
             self.load_state(self.settings.bias_file)
@@ -170,13 +199,11 @@ class ImuEngine:
         self.output_rotation = self._rot
         # None when there is nothing to do: the common case costs one test per sample.
         self._reframe = None if self._rot is None and off == (0.0, 0.0, 0.0) else (rot, self._gyro_off)
+        self._sync_raw_clip()
         # Magnetometer: m_out = R_mount R_mag S (m_raw - b), one matrix.
         s = matmul(rot, matmul(settings.mag_matrix, settings.mag_soft_iron))
         self._mag_cal = None if (bx == by == bz == 0.0 and is_identity(s)) else (bx, by, bz, *s)
-        turn = settings.yaw_turn_rad + self.heading_offset_rad
-        # q_out = Rz(turn) ⊗ q: a rotation about the output world frame's z (up in ENU/NWU, down in NED), as
-        # imu_tools turns its output; applied in one place (_output).
-        self._turn = None if turn == 0.0 else (math.cos(0.5 * turn), math.sin(0.5 * turn))
+        self._set_turn()
         self._remove_g = settings.remove_gravity_vector
         self._stateless = settings.stateless
         self._corrected_rate = settings.bias_corrected_rate
@@ -188,6 +215,21 @@ class ImuEngine:
             self.hard_iron = HardIronEstimator(settings.mag_online_memory_rad)
         else:
             self.hard_iron.memory_rad = settings.mag_online_memory_rad
+
+    def _set_turn(self) -> None:
+        """The output's turn about the world's vertical: ``yaw_offset - declination`` + :attr:`heading_offset_rad`."""
+        turn = self.settings.yaw_turn_rad + self.heading_offset_rad
+        # q_out = Rz(turn) ⊗ q: a rotation about the output world frame's z (up in ENU/NWU, down in NED), as
+        # imu_tools turns its output; applied in one place (_output).
+        self._turn = None if turn == 0.0 else (math.cos(0.5 * turn), math.sin(0.5 * turn))
+
+    def _sync_raw_clip(self) -> None:
+        """``gyro_range_rad_s`` is the sensor's range, per axis of its raw readings: when the engine rotates the gyro
+        or subtracts an offset, the filter's input is no raw reading, and the engine checks the raw one for it."""
+        f = self.filter
+        self._clip_filter = f if self._reframe is not None and isinstance(f, QuaternionCcf) else None
+        if isinstance(f, QuaternionCcf):
+            f.raw_clip_check = self._clip_filter is not None
 
     def _bank_counts(self) -> None:
         """Add the filter's counters to the engine's totals (before the filter's are reset or it is replaced)."""
@@ -202,6 +244,7 @@ class ImuEngine:
         """Run ``filt`` from the next sample on (a fresh estimate); the counters keep counting."""
         self._bank_counts()
         self.filter = filt
+        self._sync_raw_clip()
         self._n_far_back = 0
         self._t_ahead = None
         self._t_const = 0.0
@@ -278,6 +321,12 @@ class ImuEngine:
         """
         self.n_in += 1
         if self._reframe is not None:
+            cf = self._clip_filter
+            if cf is not None:
+                # The range is the sensor's: its raw reading, per axis (the filter runs its recovery on the verdict).
+                clip = cf.clip_threshold_rad_s
+                gx, gy, gz = gyr
+                cf.gyro_clipped_raw = gx >= clip or gx <= -clip or gy >= clip or gy <= -clip or gz >= clip or gz <= -clip
             gyr, acc = self._to_output_frame(gyr, acc)
         t_last = self._t_last
         if t_s - t_last > JUMP_AHEAD_S and t_last > -math.inf and t_s - t_last > self.filter.params.max_dt_s:
@@ -317,8 +366,9 @@ class ImuEngine:
         if self._stateless:
             return self._stateless_output(t_s, gyr, acc, mag)
         status = f.update(t_s, gyr, acc, mag)
-        if self._pending_heading is not None and f.initialized:
-            self._apply_pending_heading()
+        if (self._pending_heading is not None or self.pending_pose is not None or self._anchor is not None) \
+                and f.initialized:  # (written out: _heading_todo's call costs more than its three tests)
+            self._heading_step(t_s, gyr)
         if status >= ANSWERED_BELOW:
             if not f.initialized:
                 return None
@@ -348,7 +398,7 @@ class ImuEngine:
         rows = zip(is_imu, t_s, *v1, *v2, strict=True)
         if (self._reframe is not None or self._stateless or self._constant_dt > 0.0
                 or self._remove_g or self._corrected_rate or self._hint_until != math.inf
-                or self._pending_heading is not None):
+                or self._heading_todo):
             self._chunk_general(rows, ans, answers)
             return ans
         answered, quats, variances, biases = ans.answered, ans.quaternion, ans.variance, ans.bias
@@ -726,22 +776,34 @@ class ImuEngine:
 
     # --- heading and motion hint --------------------------------------------------------------------------------
     def _clear_heading_offset(self) -> None:
+        """A restart of the estimate (reset, a new filter): the offset set_heading made in 9-D goes (a heading set
+        before the filter initialised stays pending: it is the robot's, not the estimate's)."""
+        self._anchor = None
         if self.heading_offset_rad:
             self.heading_offset_rad = 0.0
-            self.set_settings(self.settings)
+            self._set_turn()
+
+    @property
+    def _heading_todo(self) -> bool:
+        """Whether on_imu has heading work after the filter's update (a pending heading, an anchor)."""
+        return self._pending_heading is not None or self.pending_pose is not None or self._anchor is not None
 
     def set_heading(self, yaw_rad: float) -> str:
         """Make the output's yaw (Z-Y-X, about the world frame's z, yaw_offset included) ``yaw_rad`` from now on.
 
         With a magnetometer heading (9-D) the filter stays referenced to north: the output is turned by an offset
-        kept until :meth:`reset`. Without (6-D) the filter's state itself is turned. Returns ``offset``,
-        ``state``, or ``not initialised`` (nothing done).
+        kept until :meth:`reset`. Without (6-D) the filter's state itself is turned. In 9-D before the magnetometer
+        gave north the state is turned too, and once it does the gyro carries the set heading on while the filter
+        acquires north (``tau_mag_s``): the offset takes their difference, so the output keeps the set heading.
+        Before the filter initialised the yaw is kept and applied when it does (:attr:`pending_pose`). Returns
+        ``offset``, ``state``, ``pending`` or ``ignored: not finite`` (nothing done).
         """
         f = self.filter
         if not math.isfinite(yaw_rad):
             return 'ignored: not finite'
         if not f.initialized:
-            return 'not initialised'
+            self.pending_pose = yaw_rad
+            return 'pending'
         q = f.quaternion
         turn = self._turn
         if turn is not None:
@@ -751,10 +813,47 @@ class ImuEngine:
         d = math.remainder(yaw_rad - rpy_of(q)[2], 2.0 * math.pi)
         if f.flags.heading_absolute:
             self.heading_offset_rad = math.remainder(self.heading_offset_rad + d, 2.0 * math.pi)
-            self.set_settings(self.settings)
+            self._set_turn()
+            if self._anchor is not None and self._anchor.yaw is not None:
+                self._anchor.yaw += d  # (the heading the gyro carries is the one set now)
             return 'offset'
         f.set_heading(rpy_of(f.quaternion)[2] + d)
+        if f.params.use_mag and self._anchor is None:
+            self._anchor = _HeadingAnchor(self.heading_offset_rad, float(getattr(f.params, 'tau_mag_s', ANCHOR_S)),
+                                          f.quaternion, self.clock_s)
         return 'state'
+
+    def _heading_step(self, t_s: float, gyr: Vec3) -> None:
+        """After an update of the initialised filter: pending headings applied, the anchor carried on."""
+        if self._pending_heading is not None:
+            self._apply_pending_heading()
+        if self.pending_pose is not None:
+            yaw, self.pending_pose = self.pending_pose, None
+            self.set_heading(yaw)
+            return
+        a = self._anchor
+        if a is None:
+            return
+        f = self.filter
+        q = f.quaternion
+        if a.yaw is None:
+            if not f.flags.heading_absolute:
+                # Not north-referenced yet: the filter's heading is the gyro's (no magnetometer correction so far).
+                a.q, a.t = q, t_s
+                return
+            # The first sample referenced to north: the heading before it goes on with the gyro from here.
+            a.yaw, a.until = rpy_of(a.q)[2], t_s + a.settle_s
+        # The rate about the world's vertical: the third row of the body -> world rotation times the corrected rate.
+        qw, qx, qy, qz = q
+        bx, by, bz = f.gyro_bias
+        wz = (2.0 * (qx * qz - qw * qy) * (gyr[0] - bx) + 2.0 * (qy * qz + qw * qx) * (gyr[1] - by)
+              + (1.0 - 2.0 * (qx * qx + qy * qy)) * (gyr[2] - bz))
+        a.yaw += wz * (t_s - a.t)
+        a.t = t_s
+        self.heading_offset_rad = math.remainder(a.base + a.yaw - rpy_of(q)[2], 2.0 * math.pi)
+        self._set_turn()
+        if t_s >= a.until:
+            self._anchor = None  # north acquired: the offset stays as it is now, as set_heading's in 9-D
 
     def heading_state(self) -> float | None:
         """The filter's yaw (rad, its world frame, yaw_offset not included) to keep across a restart, or None when
@@ -766,7 +865,7 @@ class ImuEngine:
 
     def restore_heading(self, yaw_rad: float) -> None:
         """Start from the yaw :meth:`heading_state` gave (e.g. saved before a restart): applied when the filter
-        initialises, unless the magnetometer gives it a heading then."""
+        initialises, unless the magnetometer gives it a heading then (a :meth:`set_heading` before it wins)."""
         self._pending_heading = yaw_rad
 
     def _apply_pending_heading(self) -> None:
@@ -775,11 +874,15 @@ class ImuEngine:
         if yaw is not None and not f.flags.heading_absolute:
             f.set_heading(yaw)
 
-    def on_motion_hint(self, t_s: float, still: bool, timeout_s: float = 0.5) -> None:
+    def on_motion_hint(self, t_s: float, still: bool, timeout_s: float = 0.5) -> float:
         """An outside motion hint stamped ``t_s`` (s): ``still`` or moving. The filter learns the gyro bias at rest
-        only while the latest hint says still; a hint counts until ``timeout_s`` after its stamp (IMU stamps)."""
+        only while the latest hint says still; a hint counts until ``timeout_s`` after its stamp, on the IMU's
+        clock (its header stamps). Returns the latest IMU stamp minus ``t_s`` (s; NaN before the first IMU
+        sample): beyond ``timeout_s`` the hint expires at the next IMU sample, below ``-timeout_s`` it counts until
+        the IMU stamps reach it (a clock other than the IMU's: the adapter warns)."""
         self.filter.still_hint = still
         self._hint_until = t_s + timeout_s
+        return self._t_last - t_s if self._t_last > -math.inf else math.nan
 
     def _expire_hint(self) -> None:
         self.filter.still_hint = None

@@ -24,10 +24,11 @@ def test_colcon_build_installs_node_and_ament_marker(tmp_path):
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stdout + r.stderr
     install = tmp_path / 'install' / 'ccf_ros'
-    for exe in ('ccf_node', 'imu_filter_madgwick_node', 'complementary_filter_node'):
+    for exe in ('ccf_node', 'ccf_lifecycle_node', 'imu_filter_madgwick_node', 'complementary_filter_node'):
         node = install / 'lib' / 'ccf_ros' / exe
         assert node.exists() and os.access(node, os.X_OK), exe
-    for launch in ('ccf.launch.py', 'imu_filter.launch.py', 'complementary_filter.launch.py'):
+    for launch in ('ccf.launch.py', 'imu_filter.launch.py', 'complementary_filter.launch.py',
+                   'imu_filter_component.launch.py'):
         assert (install / 'share' / 'ccf_ros' / 'launch' / launch).exists(), launch
     assert (install / 'lib' / 'ccf_ros' / 'ccf').exists()
     assert (install / 'share' / 'ament_index' / 'resource_index' / 'packages' / 'ccf_ros').exists()

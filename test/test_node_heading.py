@@ -52,6 +52,38 @@ def test_set_pose_sets_the_heading_as_the_engine_does(context, inputs, use_mag, 
         h.close()
 
 
+def test_set_pose_before_the_imu_streams_is_kept_and_its_quaternion_normalised(context, inputs):
+    """A bring-up publishes the initial pose before the IMU streams: it is applied when the filter initialises (was:
+    dropped). The orientation is normalised before its yaw is taken: {z: 1, w: 1} is 90° (was: 116.6°), and a
+    quaternion of norm 3 for 1 rad is 1 rad (was: 1.96 rad)."""
+    node = reliable_node(context, use_mag=False)
+    h = Harness(context, node)
+    try:
+        pub = h.io.create_publisher(PoseWithCovarianceStamped, 'set_pose', 10)
+        h.wait_connected()
+        assert h.spin_until(lambda: pub.get_subscription_count() > 0)
+
+        def send(z, w):
+            pose = PoseWithCovarianceStamped()
+            pose.pose.pose.orientation.z, pose.pose.pose.orientation.w = z, w
+            n = node.n_set_pose
+            pub.publish(pose)
+            assert h.spin_until(lambda: node.n_set_pose == n + 1), 'set_pose not received'
+
+        send(1.0, 1.0)
+        first, second = inputs[:800], inputs[800:1200]
+        h.feed(first, 400)
+        yaws = [rpy_of(from_xyzw(*q))[2] for q in _xyzw(h.out[:400])]
+        assert yaws[0] == pytest.approx(0.5 * math.pi, abs=1e-9)
+        # (measured at most 0.005 rad off over the 2 s: the simulated motion)
+        assert max(abs(y - 0.5 * math.pi) for y in yaws) < 0.006
+        send(3.0 * math.sin(0.5), 3.0 * math.cos(0.5))
+        h.feed(second, 600)
+        assert rpy_of(from_xyzw(*_xyzw(h.out[400:401])[0]))[2] == pytest.approx(1.0, abs=0.01)  # one sample after
+    finally:
+        h.close()
+
+
 @pytest.mark.parametrize('msg_type', [Odometry, TwistStamped])
 def test_motion_hint_topic_is_subscribed_with_its_graph_type(context, msg_type):
     node = reliable_node(context, motion_hint_topic='odom')
@@ -74,5 +106,40 @@ def test_motion_hint_topic_is_subscribed_with_its_graph_type(context, msg_type):
         assert h.spin_until(lambda: node.engine.filter.still_hint is False)
         send(0.0)
         assert h.spin_until(lambda: node.engine.filter.still_hint is True)
+    finally:
+        h.close()
+
+
+def test_motion_hint_with_a_non_finite_twist_is_ignored_and_a_far_stamp_is_counted(context, inputs):
+    """A NaN twist says nothing (was: read as "moving"); a hint stamped far from the IMU's clock (0: a driver that
+    does not stamp) is counted and warned about (it expires at the next IMU sample)."""
+    node = reliable_node(context, motion_hint_topic='odom', use_mag=False)
+    h = Harness(context, node)
+    try:
+        pub = h.io.create_publisher(TwistStamped, '/odom', 10)
+        assert h.spin_until(lambda: node.sub_hint is not None, 10.0), 'motion hint not subscribed'
+        assert h.spin_until(lambda: pub.get_subscription_count() > 0)
+        h.wait_connected()
+        first = inputs[:200]
+        h.feed(first, sum(topic == '/imu/data_raw' for topic, _ in first))
+        stamp = next(m for topic, m in reversed(first) if topic == '/imu/data_raw').header.stamp
+
+        def send(turn_rad_s, sec, nanosec=0):
+            msg = TwistStamped()
+            msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
+            msg.twist.angular.z = turn_rad_s
+            pub.publish(msg)
+
+        send(math.nan, stamp.sec, stamp.nanosec)
+        assert h.spin_until(lambda: getattr(node, 'n_hints_ignored', 0) == 1
+                            or node.engine.filter.still_hint is not None), 'non-finite hint not seen'
+        assert node.engine.filter.still_hint is None  # (the old code: False, "moving")
+        assert node.n_hints_ignored == 1
+        send(0.0, stamp.sec, stamp.nanosec)
+        assert h.spin_until(lambda: node.engine.filter.still_hint is True)
+        assert getattr(node, 'n_hints_far', 0) == 0
+        send(math.radians(1.0), 0)
+        assert h.spin_until(lambda: getattr(node, 'n_hints_far', 0) == 1), 'hint stamped 0 not counted'
+        assert node.engine.filter.still_hint is False and node.n_hints_ignored == 1
     finally:
         h.close()

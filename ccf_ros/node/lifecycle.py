@@ -54,6 +54,7 @@ class CcfLifecycleNode(LifecycleNodeMixin, CcfNode):
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
         self.save_state()  # before the estimate is dropped
+        self._drop_pending_pose('cleanup drops the filter state')
         self.engine.reset()
         self.sync.reset()
         self._t_imu_done = -math.inf
@@ -62,11 +63,13 @@ class CcfLifecycleNode(LifecycleNodeMixin, CcfNode):
         return TransitionCallbackReturn.SUCCESS
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._drop_pending_pose('the node shuts down')
         self._close_ccf()
         self._configured = False
         return TransitionCallbackReturn.SUCCESS
 
     def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._drop_pending_pose('an error transition')
         self._close_ccf()
         self._configured = False
         return TransitionCallbackReturn.SUCCESS

@@ -228,6 +228,9 @@ class CcfNode(Node):
         self._hint_topic = ''
         #: set_pose messages applied
         self.n_set_pose = 0
+        #: motion hints ignored (non-finite twist), and those stamped beyond motion_hint_timeout_s from the IMU's
+        self.n_hints_ignored = 0
+        self.n_hints_far = 0
 
     def _configure_ccf(self) -> None:
         """Declare the parameters (once), validate them and build the engine.
@@ -264,7 +267,8 @@ class CcfNode(Node):
         self._last_bias_t = -math.inf
         #: stamp of the IMU sample processed last (+ the pairer's tolerance): a magnetometer sample up to it is late
         self._t_imu_done = -math.inf
-        self._last_warn = 0.0
+        #: when each kind of throttled warning was last logged (time.monotonic(), s)
+        self._last_warn: dict[str, float] = {}
         if not self._callbacks_added:
             self._callbacks_added = True
             self.add_on_set_parameters_callback(self._validate_parameters)
@@ -384,25 +388,55 @@ class CcfNode(Node):
         self._motion_hint(msg.header, msg.twist)
 
     def _motion_hint(self, header: Any, twist: Any) -> None:
-        """Still: speed below motion_hint_linear_m_s and turn rate below motion_hint_angular_rad_s."""
+        """Still: speed below motion_hint_linear_m_s and turn rate below motion_hint_angular_rad_s. A non-finite
+        twist says nothing (ignored, not "moving"); a stamp far from the IMU's is warned about (throttled)."""
         v, w = twist.linear, twist.angular
-        still = (v.x * v.x + v.y * v.y + v.z * v.z < self._hint_lin2
-                 and w.x * w.x + w.y * w.y + w.z * w.z < self._hint_ang2)
-        self.engine.on_motion_hint(stamp_s(header), still, self._hint_timeout)
+        v2 = v.x * v.x + v.y * v.y + v.z * v.z
+        w2 = w.x * w.x + w.y * w.y + w.z * w.z
+        if not (math.isfinite(v2) and math.isfinite(w2)):
+            self.n_hints_ignored += 1
+            self._warn_throttled(f'motion hint ignored: non-finite twist (linear {v.x, v.y, v.z}, angular '
+                                 f'{w.x, w.y, w.z}); {self.n_hints_ignored} so far', 'hint')
+            return
+        t = stamp_s(header)
+        age = self.engine.on_motion_hint(t, v2 < self._hint_lin2 and w2 < self._hint_ang2, self._hint_timeout)
+        if abs(age) > self._hint_timeout:  # (NaN before the first IMU sample: no judgement)
+            self.n_hints_far += 1
+            self._warn_throttled(
+                f'motion hint stamped {t:.3f} s, {age:+.3f} s from the latest IMU stamp (beyond motion_hint_timeout_s '
+                f'{self._hint_timeout:g} s): it ' + ('expires at once' if age > 0.0 else 'counts until the IMU stamps '
+                'reach it') + '; the hint must be stamped on the IMU\'s clock (a stamp of 0: an odometry driver that '
+                f'does not stamp); {self.n_hints_far} so far', 'hint')
 
     def _on_set_pose(self, msg: PoseWithCovarianceStamped) -> None:
-        """Set the output's heading to the yaw of the pose's orientation (roll, pitch and position ignored)."""
+        """Set the output's heading to the yaw of the pose's orientation (roll, pitch and position ignored); the
+        quaternion is normalised first. Before the filter initialised (a bring-up publishes the initial pose before
+        the IMU streams) the heading is kept and applied when it does."""
         o = msg.pose.pose.orientation
         n2 = o.x * o.x + o.y * o.y + o.z * o.z + o.w * o.w
         if not (math.isfinite(n2) and n2 > 1e-6):
             self.get_logger().warning(f'set_pose ignored: orientation {o.x, o.y, o.z, o.w} is not a rotation')
             return
-        yaw = rpy_of(from_xyzw(o.x, o.y, o.z, o.w))[2]
+        n = 1.0 / math.sqrt(n2)
+        yaw = rpy_of(from_xyzw(o.x * n, o.y * n, o.z * n, o.w * n))[2]
         # Samples held for their magnetometer sample came before the pose: answered with the old heading.
         self._answer_all(self.sync.flush(time.monotonic()))
+        replaced = self.engine.pending_pose
         how = self.engine.set_heading(yaw)
         self.n_set_pose += 1
-        self.get_logger().info(f'set_pose: heading {yaw:.4f} rad ({how})')
+        if how == 'pending':
+            self.get_logger().info(f'set_pose: heading {yaw:.4f} rad kept until the filter initialises' + (
+                f' (replaces the pending {replaced:.4f} rad)' if replaced is not None else ''))
+        else:
+            self.get_logger().info(f'set_pose: heading {yaw:.4f} rad ({how})')
+
+    def _drop_pending_pose(self, why: str) -> None:
+        """A set_pose heading still waiting for the filter to initialise is lost (``why``): one warning."""
+        engine = getattr(self, 'engine', None)
+        if engine is not None and engine.pending_pose is not None:
+            self.get_logger().warning(f'set_pose heading {engine.pending_pose:.4f} rad lost: {why} before the '
+                                      'filter initialised (no IMU sample with a usable accelerometer)')
+            engine.pending_pose = None
 
     def _input_qos(self) -> QoSProfile:
         """A new input profile per subscription (rclpy writes the overrides into the profile it is given)."""
@@ -759,10 +793,11 @@ class CcfNode(Node):
             return self.pub_bias.get_subscription_count() > 0
         return False
 
-    def _warn_throttled(self, text: str) -> None:
+    def _warn_throttled(self, text: str, kind: str = '') -> None:
+        """A warning at most every 5 s per ``kind`` (one kind's flood does not hide another's)."""
         now = time.monotonic()
-        if now - self._last_warn > 5.0:
-            self._last_warn = now
+        if now - self._last_warn.get(kind, -math.inf) > 5.0:
+            self._last_warn[kind] = now
             self.get_logger().warning(text)
 
     def save_state(self) -> None:
@@ -779,6 +814,7 @@ class CcfNode(Node):
 
     def destroy_node(self) -> None:
         """Write bias_file (shutdown), then destroy the node."""
+        self._drop_pending_pose('the node shuts down')
         self.save_state()
         super().destroy_node()
 

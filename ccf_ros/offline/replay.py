@@ -12,6 +12,7 @@ filter runs over a block's samples in a tight loop, then the block's answers and
 
 from __future__ import annotations
 
+import math
 import struct
 import sys
 import time
@@ -329,8 +330,10 @@ class _HintPath:
         msg = deserialize(self._reader, raw, self.msgtype, self._bag)
         tw = msg.twist.twist if self.msgtype == ODOMETRY else msg.twist
         v, w = tw.linear, tw.angular
-        still = v.x * v.x + v.y * v.y + v.z * v.z < self._lin2 and w.x * w.x + w.y * w.y + w.z * w.z < self._ang2
-        self._engine.on_motion_hint(stamp_s(msg.header), still, self._timeout)
+        v2 = v.x * v.x + v.y * v.y + v.z * v.z
+        w2 = w.x * w.x + w.y * w.y + w.z * w.z
+        if math.isfinite(v2) and math.isfinite(w2):  # (a non-finite twist says nothing: skipped, as the node does)
+            self._engine.on_motion_hint(stamp_s(msg.header), v2 < self._lin2 and w2 < self._ang2, self._timeout)
 
 
 class Kind(Enum):

@@ -32,6 +32,7 @@ from .filter import CcfState, QuaternionCcf
 from .mag_gate import MagGate
 from .params import (
     BIAS_UPDATE_PERIOD_S,
+    CLIP_FRACTION,
     GRAVITY_M_S2,
     MAG_BAND_S,
     MAG_REJECT_SIGMAS,
@@ -44,6 +45,7 @@ from .params import (
 
 __all__ = [
     'BIAS_UPDATE_PERIOD_S',
+    'CLIP_FRACTION',
     'GRAVITY_M_S2',
     'MAG_BAND_S',
     'MAG_REJECT_SIGMAS',

@@ -8,7 +8,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TypeVar
 
-from .params import MAG_BAND_S, MAG_SCORE_S, CcfParams
+from .params import CLIP_FRACTION, MAG_BAND_S, MAG_SCORE_S, CcfParams
 
 
 def butterworth_step(tau_s: float, dt: float) -> tuple[float, float, float, float]:
@@ -59,8 +59,9 @@ class _Coefficients:
     var_clip: float
 
     @classmethod
-    def of(cls, p: CcfParams, key: int) -> _Coefficients:
-        """The coefficients of bin ``key`` of sample periods (:func:`_bin`)."""
+    def of(cls, p: CcfParams, key: int, own_clip: bool = True) -> _Coefficients:
+        """The coefficients of bin ``key`` of sample periods (:func:`_bin`); ``own_clip`` False: no threshold of the
+        filter's own for ``gyro_range_rad_s`` (its caller checks the raw readings: ``raw_clip_check``)."""
         dt_lo, dt, dt_hi = _bin_range(key)
         k_rest = -math.expm1(-dt / p.rest_tau_s)
         # Rest thresholds apply to (sample - new low-pass) = (1 - k_rest) * (sample - old low-pass).
@@ -100,7 +101,7 @@ class _Coefficients:
             sigma_init=p.bias_sigma_init_rad_s,
             var_arw=p.gyro_arw_rad_sqrt_s**2 * dt,
             # (A float compare against inf is all a gyro without a known range costs.)
-            clip=0.998 * p.gyro_range_rad_s if p.gyro_range_rad_s > 0.0 else math.inf,
+            clip=CLIP_FRACTION * p.gyro_range_rad_s if p.gyro_range_rad_s > 0.0 and own_clip else math.inf,
             var_clip=(p.gyro_range_rad_s * dt) ** 2,
         )
 

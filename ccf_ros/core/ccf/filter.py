@@ -6,11 +6,20 @@ import math
 from math import atan2, cos, sin, sqrt
 from typing import NamedTuple
 
+from ..base import CommonParams
 from ..quaternion import Quat, level_quat, quat_from_acc_mag_scalar, relevel
 from .bias import BiasKalman
 from .discretisation import _BlockCoefficients, _cached, _Coefficients
 from .mag_gate import MagGate
-from .params import _DEG, BIAS_UPDATE_PERIOD_S, GRAVITY_M_S2, REST_BIAS_TOL_RAD_S, REST_RELEARN_S, CcfParams
+from .params import (
+    _DEG,
+    BIAS_UPDATE_PERIOD_S,
+    CLIP_FRACTION,
+    GRAVITY_M_S2,
+    REST_BIAS_TOL_RAD_S,
+    REST_RELEARN_S,
+    CcfParams,
+)
 
 _PI = math.pi
 _TWO_PI = 2.0 * math.pi
@@ -93,15 +102,45 @@ class QuaternionCcf(MagGate):
         '_heading_known',
         '_kf',
         '_n_init',
+        '_raw_clip',
         '_rest_s',
         '_var_incl',
         '_x',
+        'clip_threshold_rad_s',
+        'gyro_clipped_raw',
         'n_gyro_clipped',
     )
     params: CcfParams
 
     def __init__(self, params: CcfParams | None = None) -> None:
+        # (Before the base class applies the parameters: the coefficients read it.)
+        self._raw_clip: bool = False
+        #: with :attr:`raw_clip_check`: the caller's verdict on the next sample's raw gyro (at the range or not)
+        self.gyro_clipped_raw: bool = False
         super().__init__(params if params is not None else CcfParams())
+
+    def _apply_params(self, params: CommonParams) -> None:
+        super()._apply_params(params)
+        r = self.params.gyro_range_rad_s
+        #: a raw gyro reading at or beyond this (rad/s, per axis) is at the range (inf: no range known)
+        self.clip_threshold_rad_s: float = CLIP_FRACTION * r if r > 0.0 else math.inf
+
+    @property
+    def raw_clip_check(self) -> bool:
+        """Whether the caller checks ``gyro_range_rad_s`` itself, on the sensor's raw readings, and tells the verdict
+        per sample in :attr:`gyro_clipped_raw` before :meth:`update`. Needed when the filter's input is not the raw
+        reading (the engine's mount rotation and gyro offset: a rotated reading is at no axis's range, an unclipped
+        one may be beyond it); the filter's own check of its input is off then. False by default."""
+        return self._raw_clip
+
+    @raw_clip_check.setter
+    def raw_clip_check(self, on: bool) -> None:
+        if on != self._raw_clip:
+            self._raw_clip = on
+            self.gyro_clipped_raw = False
+            # The per-sample coefficients hold the filter's own threshold: the same bin, rebuilt.
+            self._coef_cache.clear()
+            self._coef = self._coefficients(math.sqrt(self._coef.dt_lo * self._coef.dt_hi))
 
     def _reset_state(self) -> None:
         # (Counts are ints among the floats.)
@@ -127,7 +166,7 @@ class QuaternionCcf(MagGate):
 
     def _coefficients(self, dt: float) -> _Coefficients:
         """The per-sample coefficients for a sample period of ``dt`` s (> 0)."""
-        return _cached(self._coef_cache, dt, lambda key: _Coefficients.of(self.params, key))
+        return _cached(self._coef_cache, dt, lambda key: _Coefficients.of(self.params, key, not self._raw_clip))
 
     def _block_coefficients(self, t: float) -> _BlockCoefficients:
         """The bias update's constants for a block spanning ``t`` s (> 0)."""
@@ -205,8 +244,9 @@ class QuaternionCcf(MagGate):
         c = self._coef
         if not c.dt_lo <= dt <= c.dt_hi:
             c = self._coef = self._coefficients(dt)
-        clip = c.clip
-        if gx >= clip or gx <= -clip or gy >= clip or gy <= -clip or gz >= clip or gz <= -clip:
+        clip = c.clip  # (inf with raw_clip_check: the caller's verdict is gyro_clipped_raw)
+        if (gx >= clip or gx <= -clip or gy >= clip or gy <= -clip or gz >= clip or gz <= -clip
+                or self.gyro_clipped_raw):
             self._gyro_clipped(c.var_clip)
         qw, qx, qy, qz = self._q
         # CcfState's fields, in its order (a plain tuple: see CcfState).

@@ -36,6 +36,9 @@ NEW_FIELD_TURN_RAD = math.pi / 2
 REST_BIAS_TOL_RAD_S = math.radians(0.3)
 #: ... unless it stays steady this long, s: a rest learnt wrongly (a slow turn first) must not block later rests.
 REST_RELEARN_S = 120.0
+#: A gyro reading at this share of ``gyro_range_rad_s`` or beyond (per axis) is at the range: clipped (a sensor's
+#: full scale is rarely the exact nominal value).
+CLIP_FRACTION = 0.998
 
 
 @dataclass(frozen=True)
