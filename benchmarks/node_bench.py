@@ -27,7 +27,7 @@ see the same machine load, which on a shared machine changes by the second).
 
 Usage: python benchmarks/node_bench.py [--chunks 20] [--throughput-rounds 3] [--broad] [--node-cmd CMD]
        [--cpu [--rates 200,400,1000] [--chunk-s 2]]
-(sets ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; uses ROS_DOMAIN_ID if set, else a free domain of 200-232, locked for the run)
+(sets ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; uses ROS_DOMAIN_ID if set, else a free domain of 215-232, locked for the run)
 """
 
 from __future__ import annotations

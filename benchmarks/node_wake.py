@@ -7,7 +7,7 @@ trigger + ``spin_once`` until its callback ran, in rounds (median of the rounds'
 ``PYTHONPATH=<old checkout>``) alternately and compare.
 
 Usage: python benchmarks/node_wake.py [--bare] [--cycles 3000] [--rounds 5] [--executor rclpy|lean]
-(sets ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; uses ROS_DOMAIN_ID if set, else a free domain of 200-232, locked for the run)
+(sets ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; uses ROS_DOMAIN_ID if set, else a free domain of 215-232, locked for the run)
 """
 
 from __future__ import annotations

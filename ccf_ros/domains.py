@@ -18,8 +18,9 @@ __all__ = ['DOMAIN_LOCK_DIR', 'TOOL_DOMAINS', 'acquire_domain', 'own_domain']
 #: Where the per-domain lock files live (one machine-wide directory, as the domains are machine-wide).
 DOMAIN_LOCK_DIR = Path(tempfile.gettempdir()) / 'ccf_ros_test_domains'
 #: The domains the demo, benchmarks and checks take when ROS_DOMAIN_ID is not set: above the test suites' default
-#: 100-199, within Fast DDS's 0-232.
-TOOL_DOMAINS = range(200, 233)
+#: 100-199, and 215-232 because the ports of domains 102-214 can fall in Linux's ephemeral port range (ROS 2's
+#: "The ROS_DOMAIN_ID" concept page).
+TOOL_DOMAINS = range(215, 233)
 
 #: Index into the range of the next domain this process tries: round robin, so a domain just released (whose
 #: processes' DDS participants may still be leaving) is the last one this process takes again.

@@ -48,6 +48,7 @@ STATE_MAX_AGE_S = 30 * 86400.0
 #: A heading set in 9-D before the magnetometer gave north is carried by the gyro this long (s) after it does, while
 #: the filter acquires north, for filters without ``tau_mag_s`` (see :meth:`ImuEngine.set_heading`).
 ANCHOR_S = 15.0
+_UPDATED_STATUS = int(Status.UPDATED)
 
 Vec3 = tuple[float, float, float]
 #: Three columns (x, y, z) of N floats each.
@@ -368,7 +369,7 @@ class ImuEngine:
         status = f.update(t_s, gyr, acc, mag)
         if (self._pending_heading is not None or self.pending_pose is not None or self._anchor is not None) \
                 and f.initialized:  # (written out: _heading_todo's call costs more than its three tests)
-            self._heading_step(t_s, gyr)
+            self._heading_step(t_s, gyr, status)
         if status >= ANSWERED_BELOW:
             if not f.initialized:
                 return None
@@ -796,11 +797,13 @@ class ImuEngine:
         gave north the state is turned too, and once it does the gyro carries the set heading on while the filter
         acquires north (``tau_mag_s``): the offset takes their difference, so the output keeps the set heading.
         Before the filter initialised the yaw is kept and applied when it does (:attr:`pending_pose`). Returns
-        ``offset``, ``state``, ``pending`` or ``ignored: not finite`` (nothing done).
+        ``offset``, ``state``, ``pending``, ``ignored: not finite`` or ``ignored: stateless`` (nothing done).
         """
         f = self.filter
         if not math.isfinite(yaw_rad):
             return 'ignored: not finite'
+        if self._stateless:
+            return 'ignored: stateless'  # (each output is one sample's accelerometer and magnetometer alone)
         if not f.initialized:
             self.pending_pose = yaw_rad
             return 'pending'
@@ -823,8 +826,9 @@ class ImuEngine:
                                           f.quaternion, self.clock_s)
         return 'state'
 
-    def _heading_step(self, t_s: float, gyr: Vec3) -> None:
-        """After an update of the initialised filter: pending headings applied, the anchor carried on."""
+    def _heading_step(self, t_s: float, gyr: Vec3, status: int) -> None:
+        """After an update of the initialised filter (``status``: the update's): pending headings applied, the anchor
+        carried on by the samples that advanced the filter."""
         if self._pending_heading is not None:
             self._apply_pending_heading()
         if self.pending_pose is not None:
@@ -835,6 +839,15 @@ class ImuEngine:
         if a is None:
             return
         f = self.filter
+        dt = t_s - a.t
+        if status != _UPDATED_STATUS or not 0.0 < dt <= f.params.max_dt_s:
+            # A skipped sample (non-finite gyro, a stamp not after the latest) carries nothing; after a gap or a
+            # re-initialisation the gyro has not seen the time between: go on from here.
+            if status < ANSWERED_BELOW and dt > 0.0:
+                a.t = t_s
+                if a.yaw is None:
+                    a.q = f.quaternion
+            return
         q = f.quaternion
         if a.yaw is None:
             if not f.flags.heading_absolute:
@@ -848,7 +861,7 @@ class ImuEngine:
         bx, by, bz = f.gyro_bias
         wz = (2.0 * (qx * qz - qw * qy) * (gyr[0] - bx) + 2.0 * (qy * qz + qw * qx) * (gyr[1] - by)
               + (1.0 - 2.0 * (qx * qx + qy * qy)) * (gyr[2] - bz))
-        a.yaw += wz * (t_s - a.t)
+        a.yaw += wz * dt
         a.t = t_s
         self.heading_offset_rad = math.remainder(a.base + a.yaw - rpy_of(q)[2], 2.0 * math.pi)
         self._set_turn()

@@ -267,7 +267,9 @@ def schema() -> dict[str, Parameter]:
                                                 applies_to=_filter_applies(name))
     for cls, group in ((EngineSettings, 'engine'), (NodeSettings, 'node'), (ImuToolsGains, 'imu_tools')):
         for f in dataclasses.fields(cls):
-            out[f.name] = _from_field(f, group, _DESCRIPTION_PREFIX.get(group, ''))
+            # (no 'node: ' for a node setting that applies beyond the node)
+            prefix = '' if f.name in APPLIES_TO_SETTING else _DESCRIPTION_PREFIX.get(group, '')
+            out[f.name] = _from_field(f, group, prefix)
     for name, p in out.items():
         ro = frozenset(exe for exe, prof in PROFILES.items() if name in prof.read_only)
         if ro:

@@ -20,7 +20,7 @@ not the node's, and "every input answered" checks the node); the complementary f
 (reliable, depth 10), so its bag is played at a pace its queue of 10 keeps up with.
 
 Usage: python checks/imu_tools_dropin.py [--rate 4] [--complementary-rate 1] [--bag BAG]
-(sets ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; uses ROS_DOMAIN_ID if set, else a free domain of 200-232, locked for the run)
+(sets ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; uses ROS_DOMAIN_ID if set, else a free domain of 215-232, locked for the run)
 """
 
 from __future__ import annotations

@@ -56,7 +56,7 @@ def test_a_parallel_suite_does_not_get_a_domain_this_one_holds(ros_domain):
 
 
 def test_a_tool_takes_a_locked_domain_outside_the_suites_and_keeps_the_users():
-    """The demo, benchmarks and checks (ccf_ros.domains.own_domain): without ROS_DOMAIN_ID, a free domain of 200-232
+    """The demo, benchmarks and checks (ccf_ros.domains.own_domain): without ROS_DOMAIN_ID, a free domain of 215-232
     that stays locked while the process runs (a test suite or another tool cannot take it); with one, the user's."""
     code = textwrap.dedent("""
         import os

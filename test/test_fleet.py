@@ -425,7 +425,8 @@ def test_a_bag_that_kills_its_worker_is_recorded_failed_and_a_rerun_leaves_it(fl
 
 def test_a_task_cancelled_on_the_cluster_fails_its_bag_with_a_reason(cluster, fleet_bags, tmp_path):
     """Another client cancelling the task (or a cluster shutting down): the bag is failed with a one-line reason,
-    no traceback; no result file is written (the cancellation is not the bag's fault: the next run does it)."""
+    no traceback, and the driver writes no failed result for it (the cancellation is not the bag's fault). Dask
+    cannot stop an attempt that already runs: it finishes and writes its own result, which the next run keeps."""
     from distributed import Client, Future
 
     bag = str(fleet_bags / 'robot_a' / 'day1')
@@ -445,6 +446,13 @@ def test_a_task_cancelled_on_the_cluster_fails_its_bag_with_a_reason(cluster, fl
     assert 'Traceback' not in stderr and f'failed: {bag}: Cancelled' in stderr, stderr
     (rec,) = _records(out)
     assert rec['status'] == 'failed' and rec['error'].startswith('Cancelled: '), rec
+    # The running attempt ends on its own (bounded; waited for here so that it does not run into the next test).
+    result = out / 'bags' / f'{key}.json'
+    deadline = time.monotonic() + 60
+    while not result.exists():
+        assert time.monotonic() < deadline, 'the cancelled attempt did not finish'
+        time.sleep(0.05)
+    assert json.loads(result.read_text())['status'] == 'ok'
 
 
 @pytest.mark.parametrize('bad', [['--retries', '-1'], ['-j', '-2'], ['--task-timeout', '-1'],
@@ -476,6 +484,33 @@ def test_a_cancelled_future_that_raises_is_a_failed_record_too():
             raise AssertionError('not called')
 
     for fut in (Raising(), Cancelled()):
-        rec = _failed('/b', 'k', fut)
+        rec, the_bags = _failed('/b', 'k', fut)
+        assert not the_bags  # (not written: the next run does it)
         assert rec == {'bag': '/b', 'key': 'k', 'status': 'failed',
                        'error': 'Cancelled: the task was cancelled on the cluster before it finished'}
+
+
+def test_only_a_bag_that_kills_its_workers_is_kept_failed_on_disk():
+    """The driver writes a failure the task did not write itself only for KilledWorker (the bag's own doing: a plain
+    rerun must not send it to the cluster again); a lost connection or a full disk is not the bag's: the next run
+    does it."""
+    from types import SimpleNamespace
+
+    from distributed import KilledWorker
+
+    from ccf_ros.fleet.run import _failed
+
+    class Erred:
+        status = 'error'
+
+        def __init__(self, err):
+            self.err = err
+
+        def exception(self):
+            return self.err
+
+    rec, the_bags = _failed('/b', 'k', Erred(KilledWorker('ccf-fleet-k', SimpleNamespace(address='tcp://127.0.0.1:1'), 3)))
+    assert the_bags and rec['error'].startswith('KilledWorker: '), rec
+    for err in (OSError(28, 'No space left on device'), ConnectionResetError('lost')):
+        rec, the_bags = _failed('/b', 'k', Erred(err))
+        assert not the_bags and rec['status'] == 'failed' and type(err).__name__ in rec['error'], rec

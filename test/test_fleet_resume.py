@@ -125,11 +125,11 @@ def test_changed_settings_reprocess_every_bag(first, tmp_path):
 
 def test_changed_code_reprocesses_every_bag(first, tmp_path):
     """Other code under the same ``__version__`` (an upgrade from git, another commit): results of the old code are
-    not kept. The patch stands for an edit of the sources (the hash of the installed ones is computed once)."""
+    not kept. The patch stands for an edit of the sources (the hash of the installed ones is computed once, at import)."""
     bags, out = _copy(first, tmp_path)
     before = _records(out)
     assert {x['ccf_ros_version'] for x in before.values()} == {code_version()}
-    patch = "import ccf_ros.fleet.keys as k\nk.source_fingerprint = lambda root: 'feedfacefeed'"
+    patch = "import ccf_ros.fleet.keys as k\nk.source_fingerprint = lambda root: 'feedfacefeed'\nk.code_version.cache_clear()"
     files = _files(out)
     assert _processed(_run([str(bags), '-o', str(out)], code_patch=patch)) == (N_BAGS, 0)
     after = _records(out)

@@ -234,6 +234,32 @@ def test_set_heading_in_9d_before_the_magnetometer_gave_north_is_kept_once_it_do
     assert eng.heading_offset_rad == 0.0
 
 
+@pytest.mark.parametrize('fault', ['nan_gyro', 'stamp_back'])
+def test_a_skipped_sample_while_the_set_heading_is_carried_changes_nothing(fault):
+    """While the gyro carries a heading set in 9-D before north (the case above), a sample the filter skips (a NaN
+    gyro; a stamp 0.5 s back) must not move it: the outputs after it equal the run without that sample (before: a NaN
+    gyro made every later output NaN, a stamp back left it 14° off)."""
+    t, gyr, acc, mag, _, _ = slow_turn(turn_s=40.0)
+    runs = []
+    for with_fault in (False, True):
+        eng = ImuEngine(*build({}, strict=False))
+        yaws = []
+        for i in range(len(t)):
+            if i >= 300:
+                eng.on_mag(t[i], tuple(mag[i]))
+            if i == 200:
+                assert eng.set_heading(0.5) == 'state'
+            if with_fault and i == 350:  # (the anchor carries the heading from 300 to 300 + tau_mag_s)
+                bad = ((math.nan, 0.0, 0.0), t[i] - 0.25) if fault == 'nan_gyro' else (tuple(gyr[i]), t[i] - 0.5)
+                eng.on_imu(bad[1], bad[0], tuple(acc[i]))
+            out = eng.on_imu(t[i], tuple(gyr[i]), tuple(acc[i]))
+            yaws.append(_yaw(out))
+        runs.append(np.array(yaws))
+    clean, faulty = runs
+    assert np.isfinite(faulty).all()
+    assert np.abs(faulty - clean).max() < 1e-9, np.abs(faulty - clean).max()
+
+
 def test_a_hint_tells_how_far_its_stamp_is_from_the_imu_clock():
     """What the node warns about: a hint stamped 0 (a driver that does not stamp) is 1.7e9 s behind and expires at the
     next IMU sample."""

@@ -62,3 +62,8 @@ def bag_key(bag: str, settings: str, version: str) -> str:
         ident = (str(Path(bag).absolute()), -1, -1)
     text = json.dumps([*ident, settings, version])
     return hashlib.sha256(text.encode()).hexdigest()[:24]
+
+
+# The fingerprint of the sources as this process imported them (a worker imports the fleet modules with the rest of
+# ccf_ros): an upgrade of the files on disk while it runs does not relabel results of the code it runs.
+code_version()

@@ -33,7 +33,9 @@ CONNECT_TIMEOUT_S = 6.0
 #: start workers on demand: a batch job may wait in its queue); ``--wait-workers``.
 WORKER_WAIT_S = 300.0
 #: Columns of results.csv before the metrics.
-CSV_COLUMNS = ('bag', 'status', 'error', 'samples', 'health', 'flags', 'output', 'ccf_ros_version')
+CSV_COLUMNS = ('bag', 'status', 'error', 'samples', 'health', 'flags', 'output')
+#: Columns of results.csv after the metrics and the accuracy (added later: appended, so that positions stay).
+CSV_LAST_COLUMNS = ('ccf_ros_version',)
 
 
 class SchedulerUnreachable(CcfError):
@@ -211,6 +213,7 @@ def _flat(rec: dict[str, Any]) -> dict[str, Any]:
     for k, v in (rec.get('accuracy') or {}).items():
         if not isinstance(v, list):
             row[f'accuracy_{k}'] = v
+    row.update({c: rec.get(c, '') for c in CSV_LAST_COLUMNS})
     return row
 
 
@@ -230,7 +233,8 @@ def write_tables(out: Path, records: list[dict[str, Any]]) -> None:
     lines = ''.join(json.dumps(_no_nan({k: v for k, v in r.items() if k != 'key'}), allow_nan=False) + '\n'
                     for r in records)
     rows = [_flat(r) for r in records]
-    columns = list(CSV_COLUMNS) + sorted({k for r in rows for k in r} - set(CSV_COLUMNS))
+    fixed = set(CSV_COLUMNS) | set(CSV_LAST_COLUMNS)
+    columns = [*CSV_COLUMNS, *sorted({k for r in rows for k in r} - fixed), *CSV_LAST_COLUMNS]
     buf = io.StringIO()
     w = csv.DictWriter(buf, columns, restval='')
     w.writeheader()
@@ -242,12 +246,16 @@ def write_tables(out: Path, records: list[dict[str, Any]]) -> None:
         tmp.replace(out / name)
 
 
-def _failed(bag: str, key: str, fut: Any) -> dict[str, Any]:
+def _failed(bag: str, key: str, fut: Any) -> tuple[dict[str, Any], bool]:
     """The record of a bag whose task did not return: cancelled (by another client, or the cluster shutting down),
     its workers lost beyond Dask's ``allowed-failures`` (``KilledWorker``), or a task error outside the bag's own
-    handling. :class:`CcfError` for workers of another version."""
+    handling; and whether it is the bag's own failure to keep on disk (only ``KilledWorker``: a bag that kills its
+    workers; a lost connection, a result that could not be sent back or a full disk are not the bag's, and the next
+    run tries it again). :class:`CcfError` for workers of another version."""
     import asyncio
     import concurrent.futures
+
+    from distributed import KilledWorker
 
     try:
         err = None if fut.status == 'cancelled' else fut.exception()
@@ -259,7 +267,7 @@ def _failed(bag: str, key: str, fut: Any) -> dict[str, Any]:
         raise CcfError(str(err))
     else:
         reason = f'{type(err).__name__}: {" ".join(str(err).split())}'
-    return {'bag': bag, 'key': key, 'status': 'failed', 'error': reason}
+    return {'bag': bag, 'key': key, 'status': 'failed', 'error': reason}, isinstance(err, KilledWorker)
 
 
 def _submit_and_collect(client: Any, todo: list[tuple[str, str]], cfg: RunConfig, summary: RunSummary,
@@ -282,12 +290,13 @@ def _submit_and_collect(client: Any, todo: list[tuple[str, str]], cfg: RunConfig
             if fut.status == 'finished':
                 rec = fut.result()
             else:
-                rec = {**_failed(bag, key, fut), 'ccf_ros_version': cfg.options.version}
-                if not rec['error'].startswith('Cancelled'):
+                rec, the_bags = _failed(bag, key, fut)
+                rec['ccf_ros_version'] = cfg.options.version
+                if the_bags:
                     # A bag that kills its workers (out of memory on every one, a crash in C) is recorded as
                     # failed like any other: a plain rerun does not resubmit it (--retry-failed does). A result an
-                    # attempt wrote first is kept (exactly once); a cancelled task is not the bag's fault: no file,
-                    # the next run does it.
+                    # attempt wrote first is kept (exactly once). Anything else (cancelled, a lost connection) is
+                    # not the bag's fault: no file, the next run does it.
                     _record_failure(cfg.out, rec)
             results[key] = rec
             samples += int(rec.get('samples', 0) or 0)

@@ -400,7 +400,8 @@ class CcfNode(Node):
             return
         t = stamp_s(header)
         age = self.engine.on_motion_hint(t, v2 < self._hint_lin2 and w2 < self._hint_ang2, self._hint_timeout)
-        if abs(age) > self._hint_timeout:  # (NaN before the first IMU sample: no judgement)
+        # (NaN before the first IMU sample: no judgement; a timeout of 0 makes every hint expire at once, as chosen)
+        if self._hint_timeout > 0.0 and abs(age) > self._hint_timeout:
             self.n_hints_far += 1
             self._warn_throttled(
                 f'motion hint stamped {t:.3f} s, {age:+.3f} s from the latest IMU stamp (beyond motion_hint_timeout_s '
@@ -427,6 +428,8 @@ class CcfNode(Node):
         if how == 'pending':
             self.get_logger().info(f'set_pose: heading {yaw:.4f} rad kept until the filter initialises' + (
                 f' (replaces the pending {replaced:.4f} rad)' if replaced is not None else ''))
+        elif how.startswith('ignored'):
+            self.get_logger().warning(f'set_pose: heading {yaw:.4f} rad {how}')
         else:
             self.get_logger().info(f'set_pose: heading {yaw:.4f} rad ({how})')
 
