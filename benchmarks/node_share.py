@@ -24,13 +24,15 @@ TOTAL = [0, 0]  # ns in our per-message code, ns of rclpy publish inside it
 TIMELINE: list[tuple[float, int]] = []  # per IMU message: monotonic time after it, ns of our code so far
 
 
-def _timed(method, slot):
+def _timed(method, slot, log=False):
     def wrapper(self, *args):
         t0 = _clock()
         try:
             return method(self, *args)
         finally:
             TOTAL[slot] += _clock() - t0
+            if log:  # (the IMU callback: one time-line entry per IMU message)
+                TIMELINE.append((time.monotonic(), TOTAL[0] - TOTAL[1]))
 
     return wrapper
 
@@ -46,18 +48,8 @@ def _timed_publish(pub) -> None:
     pub.publish = timed
 
 
-def _logged(method):
-    def wrapper(self, *args):
-        try:
-            return method(self, *args)
-        finally:
-            TIMELINE.append((time.monotonic(), TOTAL[0] - TOTAL[1]))
-
-    return wrapper
-
-
 CcfNode._mag = _timed(CcfNode._mag, 0)
-CcfNode._imu = _logged(_timed(CcfNode._imu, 0))
+CcfNode._imu = _timed(CcfNode._imu, 0, log=True)
 _open = CcfNode._open_ccf
 
 

@@ -25,14 +25,20 @@ def inputs(sim_bag):
     return read_inputs(sim_bag, 4.0)
 
 
+def _set_pose_publisher(h):
+    """A set_pose publisher matched with the node's subscription, the node's IMU topics connected."""
+    pub = h.io.create_publisher(PoseWithCovarianceStamped, 'set_pose', 10)
+    h.wait_connected()
+    assert h.spin_until(lambda: pub.get_subscription_count() > 0)
+    return pub
+
+
 @pytest.mark.parametrize(('use_mag', 'how'), [(False, 'state'), (True, 'offset')])
 def test_set_pose_sets_the_heading_as_the_engine_does(context, inputs, use_mag, how):
     node = reliable_node(context, use_mag=use_mag)
     h = Harness(context, node)
     try:
-        pub = h.io.create_publisher(PoseWithCovarianceStamped, 'set_pose', 10)
-        h.wait_connected()
-        assert h.spin_until(lambda: pub.get_subscription_count() > 0)
+        pub = _set_pose_publisher(h)
         first, second = inputs[:800], inputs[800:1200]
         h.feed(first, 400)
         pose = PoseWithCovarianceStamped()
@@ -59,9 +65,7 @@ def test_set_pose_before_the_imu_streams_is_kept_and_its_quaternion_normalised(c
     node = reliable_node(context, use_mag=False)
     h = Harness(context, node)
     try:
-        pub = h.io.create_publisher(PoseWithCovarianceStamped, 'set_pose', 10)
-        h.wait_connected()
-        assert h.spin_until(lambda: pub.get_subscription_count() > 0)
+        pub = _set_pose_publisher(h)
 
         def send(z, w):
             pose = PoseWithCovarianceStamped()
