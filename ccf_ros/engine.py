@@ -18,7 +18,7 @@ from typing import Any, NamedTuple
 
 from .core.base import ANSWERED_BELOW, OrientationFilter, Status, acc_usable, mag_usable
 from .core.ccf import GRAVITY_M_S2, CcfParams, QuaternionCcf
-from .core.hard_iron import HardIronEstimator, HardIronStatus
+from .core.hard_iron import UPDATE_PERIOD_S, HardIronEstimator, HardIronStatus
 from .core.pairing import MagPairer
 from .core.quaternion import (
     WORLD_FRAMES,
@@ -366,7 +366,10 @@ class ImuEngine:
         self.paired_mag = mag
         if self._stateless:
             return self._stateless_output(t_s, gyr, acc, mag)
-        status = f.update(t_s, gyr, acc, mag)
+        gx, gy, gz = gyr
+        ax, ay, az = acc
+        # (update() without its tuple unpacking and one Python call: the floats straight in)
+        status = f._update_floats(t_s, gx, gy, gz, ax, ay, az, mag)
         if (self._pending_heading is not None or self.pending_pose is not None or self._anchor is not None) \
                 and f.initialized:  # (written out: _heading_todo's call costs more than its three tests)
             self._heading_step(t_s, gyr, status)
@@ -415,7 +418,7 @@ class ImuEngine:
         t_in_use, field = pairer._t_in_use, pairer._field_in_use
         mag_cal = self._mag_cal
         hi = self.hard_iron
-        update = f.update
+        update = f._update_floats  # (update() on the floats: no tuple per sample)
         sd = self._stddev
         var_fixed = (sd * sd,) * 3 if sd > 0.0 else None
         turn = self._turn
@@ -424,8 +427,13 @@ class ImuEngine:
         # The common path holds while no lone far-ahead stamp waits and no far-behind samples are counted.
         clean = self._t_ahead is None and self._n_far_back == 0
         k = -1  # index among the chunk's IMU samples
-        n_fast = n_fast_out = 0
-        last_fast = False
+        # Counted per chunk, not per sample: the samples through on_imu and the written-out ones left unanswered (the
+        # written-out ones and their answers are what remains); the latest through on_imu (index).
+        n_slow = n_fast_skipped = 0
+        k_slow = -1
+        # (Bound once: two tests and two attribute loads less per sample.)
+        add_mag = mags.extend if mags is not None else None
+        add_rej = rejected.append if rejected is not None else None
         mag: Vec3 | None = None
         t_clock = 0.0
         for imu, t, x1, y1, z1, x2, y2, z2 in rows:
@@ -438,17 +446,18 @@ class ImuEngine:
             k += 1
             if not clean or t - t_last > JUMP_AHEAD_S or t < t_last - JUMP_BACK_RESET_S:
                 # on_imu itself: the first sample, a jump ahead or back, or what follows one
+                n_slow += 1
+                k_slow = k
                 self._t_last = t_last  # (kept in locals by the written-out steps)
                 pairer._t_in_use, pairer._field_in_use = t_in_use, field
                 out = self.on_imu(t, (x1, y1, z1), (x2, y2, z2))
                 f = self.filter
-                update = f.update
+                update = f._update_floats
                 t_last = self._t_last
                 t_in_use, field = pairer._t_in_use, pairer._field_in_use
                 pend = pairer._pending
                 push, popleft = pend.append, pend.popleft
                 clean = self._t_ahead is None and self._n_far_back == 0
-                last_fast = False
                 if mags is not None and rejected is not None:
                     mags.extend(self.paired_mag or nan3)
                     rejected.append(gated and f.mag_disturbed)
@@ -461,8 +470,6 @@ class ImuEngine:
                     add_b(out.bias)
                 continue
             # on_imu's steps for a stamp within JUMP_AHEAD_S after and JUMP_BACK_RESET_S before the latest one
-            n_fast += 1
-            last_fast = True
             t_clock = t
             if t > t_last:
                 t_last = t
@@ -478,19 +485,26 @@ class ImuEngine:
                 # on_imu's online hard iron (pair, keep when due, subtract the offset)
                 if hi.pending is not None:
                     self._online_hard_iron()
-                mag = hi.correct(t, mag)
-            status = update(t, (x1, y1, z1), (x2, y2, z2), mag)
-            if mags is not None and rejected is not None:
-                mags.extend(mag or nan3)
-                rejected.append(gated and f.mag_disturbed)
+                if mag is not None:
+                    # HardIronEstimator.correct (and its due()) written out for the common case, a sample not due
+                    # for pairing (9 in 10); a due one goes through correct() itself. Changes together with them.
+                    d = t - hi.t_next
+                    if d >= 0.0 or d < -UPDATE_PERIOD_S:
+                        mag = hi.correct(t, mag)
+                    elif (o := hi.offset) is not None:
+                        mag = (mag[0] - o[0], mag[1] - o[1], mag[2] - o[2])
+            status = update(t, x1, y1, z1, x2, y2, z2, mag)
+            if add_mag is not None and add_rej is not None:
+                add_mag(mag or nan3)
+                add_rej(gated and f.mag_disturbed)
             if status >= ANSWERED_BELOW:
                 if not f.initialized:
+                    n_fast_skipped += 1
                     continue
                 self.stale_share += STALE_SHARE_GAIN * (1.0 - self.stale_share)
                 self.n_answered_stale += 1
             elif self.stale_share:
                 self.stale_share = s if (s := self.stale_share * (1.0 - STALE_SHARE_GAIN)) > 1e-6 else 0.0
-            n_fast_out += 1
             if not answers:
                 continue
             add_k(k)
@@ -503,8 +517,10 @@ class ImuEngine:
             add_v(var_fixed or f.orientation_variance)
             add_b(f.gyro_bias)
         # What the written-out steps leave on the engine (counters, latest stamp, clock, pairing).
+        n_fast = k + 1 - n_slow
         self.n_in += n_fast
-        self.n_out += n_fast_out
+        self.n_out += n_fast - n_fast_skipped
+        last_fast = k_slow != k  # (False without IMU samples: both -1)
         self._t_last = t_last
         pairer._t_in_use, pairer._field_in_use = t_in_use, field
         if last_fast:

@@ -1,7 +1,9 @@
 """Bit-identity and speed of :class:`~ccf_ros.core.ccf.QuaternionCcf` against an earlier revision of the module.
 
 The earlier ``ccf_ros/core/ccf.py`` (a single module, git revision ``--before``) is loaded under another name inside
-this run only, beside the current package (both use the current ``core/base.py`` and ``core/quaternion.py``), and
+this run only, beside the current package (both use the current ``core/base.py`` and ``core/quaternion.py``); a
+revision where ``ccf`` is a package (``ccf_ros/core/ccf/``, from d617305 on) has its whole ``ccf_ros/core`` loaded
+instead (its own ``base.py`` and ``quaternion.py`` too: the comparison then covers the input rules as well), and
 both filters run the same samples: the nine BROAD trials at 286 Hz and every 3rd sample, 9-D and 6-D, with defaults
 and two sets of non-default parameters; and simulated recordings (jittered stamps at 40 Hz, a field that changes, a
 clipping gyro, set_heading / set_gyro_bias / set_params / magnetometer_changed / still_hint mid-run). Every output
@@ -44,9 +46,14 @@ PARAMS: dict[str, dict[str, Any]] = {
 
 
 def load_before(rev: str, name: str = '_ccf_before') -> ModuleType:
-    """The single-module ``ccf_ros/core/ccf.py`` of git revision ``rev``, as module ``ccf_ros.core.NAME``."""
-    src = subprocess.run(['git', '-C', str(ROOT), 'show', f'{rev}:ccf_ros/core/ccf.py'], check=True,
-                         capture_output=True, text=True).stdout
+    """The ``ccf`` module of git revision ``rev``: its single-module ``ccf_ros/core/ccf.py`` as module
+    ``ccf_ros.core.NAME``, or, where ``ccf`` is a package there, the ``ccf`` of its whole ``ccf_ros/core`` (imported
+    as the package ``NAME``: the core imports nothing outside itself)."""
+    shown = subprocess.run(['git', '-C', str(ROOT), 'show', f'{rev}:ccf_ros/core/ccf.py'], capture_output=True,
+                           text=True)
+    if shown.returncode != 0:
+        return _load_core_package(rev, name)
+    src = shown.stdout
     path = Path(tempfile.mkdtemp()) / f'{name}.py'
     path.write_text(src)
     spec = importlib.util.spec_from_file_location(f'ccf_ros.core.{name}', path)
@@ -55,6 +62,21 @@ def load_before(rev: str, name: str = '_ccf_before') -> ModuleType:
     sys.modules[spec.name] = mod
     spec.loader.exec_module(mod)
     return mod
+
+
+def _load_core_package(rev: str, name: str) -> ModuleType:
+    """``NAME.ccf`` of revision ``rev``'s ``ccf_ros/core`` tree, extracted to a temporary folder as package ``NAME``."""
+    root = Path(tempfile.mkdtemp())
+    tar = subprocess.run(['git', '-C', str(ROOT), 'archive', rev, 'ccf_ros/core'], check=True, capture_output=True)
+    subprocess.run(['tar', '-x', '-C', str(root)], input=tar.stdout, check=True)
+    (root / 'ccf_ros' / 'core').rename(root / name)
+    spec = importlib.util.spec_from_file_location(name, root / name / '__init__.py',
+                                                  submodule_search_locations=[str(root / name)])
+    assert spec is not None and spec.loader is not None
+    pkg = importlib.util.module_from_spec(spec)
+    sys.modules[name] = pkg
+    spec.loader.exec_module(pkg)
+    return importlib.import_module(f'{name}.ccf')
 
 
 def record(mod: ModuleType, params: dict[str, Any], t: list[float], g: list[Any], a: list[Any], m: list[Any],

@@ -367,6 +367,17 @@ def test_extreme_bias_uncertainties_keep_the_covariance_valid():
     assert f.gyro_bias_sigma_rad_s >= 0.0
 
 
+def test_a_malformed_accelerometer_raises_even_with_a_bad_gyro():
+    """update() unpacks the gyro and the accelerometer before it looks at either (then goes on as _update_floats on
+    the floats): an accelerometer of the wrong length is a caller's bug and raises whatever the gyro is, rather than
+    hiding behind a skipped sample. A well-formed one with the same bad gyro is skipped and counted."""
+    f = QuaternionCcf()
+    with pytest.raises(ValueError):
+        f.update(0.0, (math.nan, 0.0, 0.0), (1.0, 2.0))
+    assert f.update(0.0, (math.nan, 0.0, 0.0), (0.0, 0.0, 9.81)) == Status.SKIPPED_BAD_GYRO
+    assert f.counts[Status.SKIPPED_BAD_GYRO] == 1
+
+
 def test_a_corrupted_accelerometer_sample_does_not_end_a_rest():
     """One unusable accelerometer sample in a hundred neither extends nor ends a rest: before, no rest lasted the
     1.5 s it needs, the bias went unlearnt and the error rose from 0.63° to 1.65°."""

@@ -280,6 +280,16 @@ class OrientationFilter(ABC):
             a :class:`Status` value (as ``int``); below :data:`ANSWERED_BELOW` the orientation is valid.
         """
         gx, gy, gz = gyr
+        ax, ay, az = acc
+        return self._update_floats(t_s, gx, gy, gz, ax, ay, az, mag)
+
+    def _update_floats(
+        self, t_s: float, gx: float, gy: float, gz: float, ax: float, ay: float, az: float,
+        mag: Sequence[float] | None,
+    ) -> int:
+        """:meth:`update` on the gyro's and accelerometer's components as floats (the engine's per-sample paths call
+        it directly: no tuple built and unpacked per sample). The accelerometer is unpacked before the gyro is
+        checked, so a malformed ``acc`` (not 3 values) raises even for a sample with a bad gyro."""
         # Comparisons with NaN are False: one test catches NaN, Inf and a corrupted huge value in any component.
         if not gx * gx + gy * gy + gz * gz < _GYRO_MAX2:
             self._counts[_BAD_GYRO] += 1
@@ -293,7 +303,6 @@ class OrientationFilter(ABC):
         self._t_last = t_s
         # The accelerometer's and the magnetometer's checks below are written out, not one helper: a call costs
         # ~50-100 ns per sample on this path (a hot-path repeat on purpose).
-        ax, ay, az = acc
         acc_n2 = ax * ax + ay * ay + az * az
         if not _ACC_MIN2 < acc_n2 < _ACC_MAX2:
             acc_n2 = 0.0

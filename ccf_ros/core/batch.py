@@ -1,4 +1,5 @@
-"""Run a filter over whole arrays through the very same per-sample :meth:`update` the node and replay use."""
+"""Run a filter over whole arrays through the very same per-sample :meth:`update` the node and replay use (its
+``_update_floats``, which update() unpacks into)."""
 
 from __future__ import annotations
 
@@ -55,9 +56,11 @@ def run_batch(
     bias = [(np.nan,) * 3] * n
     var = [(np.nan,) * 3] * n
     status = [0] * n
-    update = filt.update
+    update = filt._update_floats  # (update() on the floats: one Python call per sample less)
     for i in range(n):
-        s = update(t_list[i], g_list[i], a_list[i], m_list[i])
+        gx, gy, gz = g_list[i]
+        ax, ay, az = a_list[i]
+        s = update(t_list[i], gx, gy, gz, ax, ay, az, m_list[i])
         status[i] = s
         if s < ANSWERED_BELOW:
             quat[i] = filt.quaternion

@@ -22,6 +22,7 @@ from .params import (
 )
 
 _PI = math.pi
+_INF = math.inf
 _TWO_PI = 2.0 * math.pi
 _INV_G = 1.0 / GRAVITY_M_S2
 #: Largest NCF heading error the bias estimate uses, rad (see _step).
@@ -245,7 +246,8 @@ class QuaternionCcf(MagGate):
         if not c.dt_lo <= dt <= c.dt_hi:
             c = self._coef = self._coefficients(dt)
         clip = c.clip  # (inf with raw_clip_check: the caller's verdict is gyro_clipped_raw)
-        if (gx >= clip or gx <= -clip or gy >= clip or gy <= -clip or gz >= clip or gz <= -clip
+        # (inf also without a known range, the default: then the six comparisons are skipped; the gyro is finite)
+        if ((clip != _INF and (gx >= clip or gx <= -clip or gy >= clip or gy <= -clip or gz >= clip or gz <= -clip))
                 or self.gyro_clipped_raw):
             self._gyro_clipped(c.var_clip)
         qw, qx, qy, qz = self._q
@@ -294,9 +296,11 @@ class QuaternionCcf(MagGate):
         if mag_n2:
             # The sample is a mean over the step, like the accelerometer's: the field in the frame of mid-interval.
             # The attitude here is the step's start, so carry it back half the gyro step, m' = m + p x m.
-            px = (gx - bx) * 0.5 * dt
-            py = (gy - by) * 0.5 * dt
-            pz = (gz - bz) * 0.5 * dt
+            # ((g - b) * 0.5 * dt: the factor 0.5 is exact in either place, so one product of it serves all three.)
+            hdt = 0.5 * dt
+            px = (gx - bx) * hdt
+            py = (gy - by) * hdt
+            pz = (gz - bz) * hdt
             mx, my, mz = mx + (py * mz - pz * my), my + (pz * mx - px * mz), mz + (px * my - py * mx)
             # The field in world coordinates through the attitude: east, north, up.
             me = r0x * mx + r0y * my + r0z * mz
@@ -402,42 +406,61 @@ class QuaternionCcf(MagGate):
             # away while the IMU lies still), and the gyro within rest_gyro_rad_s of its low-pass. A sample without
             # a usable accelerometer neither extends nor ends a rest (one corrupted message in a hundred would
             # otherwise never let a rest last rest_min_s).
-            if self._rest_s:
+            rest_s = self._rest_s
+            if rest_s:
                 alx, aly, alz = self._acc_lp
+                dax = ax - alx
+                day = ay - aly
+                daz = az - alz
+                acc_still = dax * dax + day * day + daz * daz < c.rest_acc2
             else:
-                alx, aly, alz = ax, ay, az
-            dax = ax - alx
-            day = ay - aly
-            daz = az - alz
+                # A possible rest begins: both low-passes start from this sample (they are not kept while moving).
+                # Its deviations from them are then 0.0 (x - x of a finite x), written out: the tests compare 0.0, and
+                # the low-passes after their update are the sample + 0.0 (k * 0.0 added; a -0.0 becomes 0.0 as there).
+                acc_still = c.rest_acc2 > 0.0
             # A motion hint saying "moving" (odometry) rules rest out: a slow steady turn is not learnt as bias.
-            if dax * dax + day * day + daz * daz < c.rest_acc2 and self.still_hint is not False:
+            if acc_still and self.still_hint is not False:
                 k = c.k_rest
-                self._acc_lp = (alx + k * dax, aly + k * day, alz + k * daz)
-                if self._rest_s:
+                if rest_s:
                     glx, gly, glz = self._gyro_lp
+                    # d = sample - previous low-pass; the deviation from the updated low-pass is (1 - k) d, which the
+                    # gyro threshold in c accounts for.
+                    dgx = gx - glx
+                    dgy = gy - gly
+                    dgz = gz - glz
+                    glx += k * dgx
+                    gly += k * dgy
+                    glz += k * dgz
+                    gyro_still = dgx * dgx + dgy * dgy + dgz * dgz < c.rest_gyro2
                 else:
-                    # A possible rest begins: the gyro low-pass starts from here (it is not kept while moving).
-                    glx, gly, glz = gx, gy, gz
-                # d = sample - previous low-pass; the deviation from the updated low-pass is (1 - k) d, which the
-                # gyro threshold in c accounts for.
-                dgx = gx - glx
-                dgy = gy - gly
-                dgz = gz - glz
-                glx += k * dgx
-                gly += k * dgy
-                glz += k * dgz
-                self._gyro_lp = (glx, gly, glz)
+                    glx, gly, glz = gx + 0.0, gy + 0.0, gz + 0.0
+                    gyro_still = c.rest_gyro2 > 0.0
                 m2 = c.bias_max2
                 # The low-passed gyro must be a believable bias: within the clamp, per axis as the clamp is.
-                if (
-                    dgx * dgx + dgy * dgy + dgz * dgz < c.rest_gyro2
-                    and glx * glx < m2
-                    and gly * gly < m2
-                    and glz * glz < m2
-                ):
+                if gyro_still and glx * glx < m2 and gly * gly < m2 and glz * glz < m2:
+                    # The low-passes are read by the next sample only while the timer runs: stored only here.
+                    if rest_s:
+                        self._acc_lp = (alx + k * dax, aly + k * day, alz + k * daz)
+                    else:
+                        self._acc_lp = (ax + 0.0, ay + 0.0, az + 0.0)
+                    self._gyro_lp = (glx, gly, glz)
                     # 1e-12 s keeps the timer non-zero (the low-pass continues) from the first sample on.
-                    rest_s = self._rest_s = self._rest_s + dt + 1e-12
-                    if rest_s >= c.rest_min_s and self._rest_agrees(glx - bx, gly - by, glz - bz):
+                    rest_s = self._rest_s = rest_s + dt + 1e-12
+                    if rest_s >= c.rest_min_s:
+                        rex = glx - bx
+                        rey = gly - by
+                        rez = glz - bz
+                        if self.still_hint or not self._bias_rested:
+                            agrees = self._rest_agrees(rex, rey, rez)
+                        else:
+                            # _rest_agrees' common case (the bias seen at rest before, no hint) written out: they
+                            # change together.
+                            p00, _, _, p11, _, p22 = self._kf.p
+                            agrees = (rex * rex + rey * rey + rez * rez < _REST_TOL2 + 9.0 * (p00 + p11 + p22)
+                                      or rest_s >= REST_RELEARN_S)
+                    else:
+                        agrees = False
+                    if agrees:
                         # At rest the low-passed gyro *is* the bias: pull the estimate there (its covariance relaxes
                         # to bias_sigma_rest² in BiasKalman.update).
                         self.at_rest = True
@@ -447,10 +470,10 @@ class QuaternionCcf(MagGate):
                     elif self.at_rest:
                         # Steady, but no longer at the bias seen: a slow turn began.
                         self.at_rest = False
-                elif self._rest_s:
+                elif rest_s:
                     self._rest_s = 0.0
                     self._end_rest()
-            elif self._rest_s:
+            elif rest_s:
                 self._rest_s = 0.0
                 self._end_rest()
         # Anti-windup: the estimate never leaves ±bias_max per axis (tested per axis only when the norm says it may).
@@ -577,6 +600,7 @@ class QuaternionCcf(MagGate):
         if self.still_hint:
             return True  # odometry says the robot stands still: a steady rate is the bias, whatever it was
         e2 = ex * ex + ey * ey + ez * ez
+        # (Its common case, the last line, is written out in _step: they change together.)
         if not self._bias_rested:
             # The first rest: once the estimate has converged on it (within the tolerance, two time constants in),
             # it was seen.
