@@ -418,6 +418,7 @@ class ImuEngine:
         t_in_use, field = pairer._t_in_use, pairer._field_in_use
         mag_cal = self._mag_cal
         hi = self.hard_iron
+        neg_period = -UPDATE_PERIOD_S
         update = f._update_floats  # (update() on the floats: no tuple per sample)
         sd = self._stddev
         var_fixed = (sd * sd,) * 3 if sd > 0.0 else None
@@ -489,7 +490,7 @@ class ImuEngine:
                     # HardIronEstimator.correct (and its due()) written out for the common case, a sample not due
                     # for pairing (9 in 10); a due one goes through correct() itself. Changes together with them.
                     d = t - hi.t_next
-                    if d >= 0.0 or d < -UPDATE_PERIOD_S:
+                    if d >= 0.0 or d < neg_period:
                         mag = hi.correct(t, mag)
                     elif (o := hi.offset) is not None:
                         mag = (mag[0] - o[0], mag[1] - o[1], mag[2] - o[2])

@@ -263,7 +263,8 @@ class QuaternionCcf(MagGate):
         wx, wy, wz = qw * x2, qw * y2, qw * z2
         r0x, r0y, r0z = 1.0 - (yy + zz), xy - wz, xz + wy
         r1x, r1y, r1z = xy + wz, 1.0 - (xx + zz), yz - wx
-        vx, vy, vz = xz - wy, yz + wx, 1.0 - (xx + yy)
+        sxy = xx + yy  # (also in the renormalisation below, evaluated in the same order: (xx + yy) + zz)
+        vx, vy, vz = xz - wy, yz + wx, 1.0 - sxy
         # LCF tilt error e: rotation (rad, body) taking the filtered gravity direction onto the estimated up;
         # divided by standard gravity, not |g_lp|, so the correction stays linear in the specific force.
         ig = _INV_G
@@ -421,6 +422,7 @@ class QuaternionCcf(MagGate):
             # A motion hint saying "moving" (odometry) rules rest out: a slow steady turn is not learnt as bias.
             if acc_still and self.still_hint is not False:
                 k = c.k_rest
+                m2 = c.bias_max2
                 if rest_s:
                     glx, gly, glz = self._gyro_lp
                     # d = sample - previous low-pass; the deviation from the updated low-pass is (1 - k) d, which the
@@ -431,13 +433,15 @@ class QuaternionCcf(MagGate):
                     glx += k * dgx
                     gly += k * dgy
                     glz += k * dgz
-                    gyro_still = dgx * dgx + dgy * dgy + dgz * dgz < c.rest_gyro2
+                    # The low-passed gyro must be a believable bias: within the clamp, per axis as the clamp is.
+                    still = (dgx * dgx + dgy * dgy + dgz * dgz < c.rest_gyro2
+                             and glx * glx < m2 and gly * gly < m2 and glz * glz < m2)
                 else:
-                    glx, gly, glz = gx + 0.0, gy + 0.0, gz + 0.0
-                    gyro_still = c.rest_gyro2 > 0.0
-                m2 = c.bias_max2
-                # The low-passed gyro must be a believable bias: within the clamp, per axis as the clamp is.
-                if gyro_still and glx * glx < m2 and gly * gly < m2 and glz * glz < m2:
+                    # (The low-pass, the sample + 0.0, squares as the sample does: tested before it is made.)
+                    still = c.rest_gyro2 > 0.0 and gx * gx < m2 and gy * gy < m2 and gz * gz < m2
+                    if still:
+                        glx, gly, glz = gx + 0.0, gy + 0.0, gz + 0.0
+                if still:
                     # The low-passes are read by the next sample only while the timer runs: stored only here.
                     if rest_s:
                         self._acc_lp = (alx + k * dax, aly + k * day, alz + k * daz)
@@ -504,13 +508,17 @@ class QuaternionCcf(MagGate):
         # The gyro's share of the step alone, p (g_lp follows the gyro only, not the LCF correction c, ~1e-5 rad).
         # Its cos is taken as the full step's cw, which leaves the rotation orthogonal to second order in |c| (and
         # more exact than rotating by h and undoing c, which left ~|r x c| / 2).
-        s2 = 0.5 * s
-        px = s2 * rx
-        py = s2 * ry
-        pz = s2 * rz
+        # (Also twice it, p2 = s r exactly: scaling by 2 is exact, so the cross products below, 2 (v x p) = v x p2, take
+        # p2 instead of a factor 2.0 each: the same floats, four products fewer.)
+        p2x = s * rx
+        p2y = s * ry
+        p2z = s * rz
+        px = 0.5 * p2x
+        py = 0.5 * p2y
+        pz = 0.5 * p2z
         # q's norm is 1 to rounding (a product of unit quaternions): its first-order inverse 1.5 - 0.5 |q|² (exact
         # to ~1e-30 there, no square root), folded into exp(h), renormalises the product.
-        inv = 1.5 - 0.5 * qw * qw - 0.25 * (xx + yy + zz)
+        inv = 1.5 - 0.5 * qw * qw - 0.25 * (sxy + zz)
         hw = cw * inv
         s *= inv
         hx *= s
@@ -524,15 +532,15 @@ class QuaternionCcf(MagGate):
         )
         # -- 5. Gravity low-pass.
         # g_lp and its rate into the new body frame, v' = R(p)^T v = v - 2 cw (p x v) + 2 p x (p x v).
-        tx = 2.0 * (fy * pz - fz * py)
-        ty = 2.0 * (fz * px - fx * pz)
-        tz = 2.0 * (fx * py - fy * px)
+        tx = fy * p2z - fz * p2y
+        ty = fz * p2x - fx * p2z
+        tz = fx * p2y - fy * p2x
         fx += cw * tx + (ty * pz - tz * py)
         fy += cw * ty + (tz * px - tx * pz)
         fz += cw * tz + (tx * py - ty * px)
-        tx = 2.0 * (fdy * pz - fdz * py)
-        ty = 2.0 * (fdz * px - fdx * pz)
-        tz = 2.0 * (fdx * py - fdy * px)
+        tx = fdy * p2z - fdz * p2y
+        ty = fdz * p2x - fdx * p2z
+        tz = fdx * p2y - fdy * p2x
         fdx += cw * tx + (ty * pz - tz * py)
         fdy += cw * ty + (tz * px - tx * pz)
         fdz += cw * tz + (tx * py - ty * px)
