@@ -359,10 +359,16 @@ class ImuEngine:
         hi = self.hard_iron
         if hi is not None:
             # Online hard iron: pair the sample kept at the previous message, keep this one when due, subtract the
-            # applied offset (HardIronEstimator.correct: one rule for this path and on_chunk's).
+            # applied offset (HardIronEstimator.correct, written out for a sample not due as in on_chunk: the three
+            # change together; a due one goes through correct() itself).
             if hi.pending is not None:
                 self._online_hard_iron()
-            mag = hi.correct(t_s, mag)
+            if mag is not None:
+                d = t_s - hi.t_next
+                if d >= 0.0 or d < -UPDATE_PERIOD_S:
+                    mag = hi.correct(t_s, mag)
+                elif (o := hi.offset) is not None:
+                    mag = (mag[0] - o[0], mag[1] - o[1], mag[2] - o[2])
         self.paired_mag = mag
         if self._stateless:
             return self._stateless_output(t_s, gyr, acc, mag)

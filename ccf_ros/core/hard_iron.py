@@ -272,7 +272,7 @@ class HardIronEstimator:
         """One IMU sample's stamp (s) and paired magnetometer sample (or None): the sample minus the applied offset
         (None if none). The sample is kept as :attr:`pending` when due (:meth:`due`), to be paired by :meth:`pair`
         with the orientation the filter reaches at it. (The engine's per-sample path, message by message and in bulk;
-        ``ImuEngine.on_chunk`` writes out this and :meth:`due` for a sample not due: they change together.)"""
+        ``ImuEngine.on_imu`` and ``on_chunk`` write out this and :meth:`due` for a sample not due: they change together.)"""
         if mag is None:
             return None
         if self.due(t_s):

@@ -100,7 +100,9 @@ class QuaternionCcf(MagGate):
         '_coef',
         '_coef_cache',
         '_gyro_lp',
+        '_head_var',
         '_heading_known',
+        '_incl_var',
         '_kf',
         '_n_init',
         '_raw_clip',
@@ -125,6 +127,10 @@ class QuaternionCcf(MagGate):
         r = self.params.gyro_range_rad_s
         #: a raw gyro reading at or beyond this (rad/s, per axis) is at the range (inf: no range known)
         self.clip_threshold_rad_s: float = CLIP_FRACTION * r if r > 0.0 else math.inf
+        # The variance floors of orientation_variance, rad² (read per output: computed once here, the same products).
+        p = self.params
+        self._incl_var = p.incl_sigma_rad * p.incl_sigma_rad
+        self._head_var = p.heading_sigma_rad * p.heading_sigma_rad
 
     @property
     def raw_clip_check(self) -> bool:
@@ -660,9 +666,8 @@ class QuaternionCcf(MagGate):
     @property
     def orientation_variance(self) -> tuple[float, float, float]:
         """Variance of roll, pitch, yaw errors, rad² (yaw relative to the start without a magnetometer)."""
-        p = self.params
-        vi = p.incl_sigma_rad * p.incl_sigma_rad + self._var_incl
-        vh = self._var_head + (p.heading_sigma_rad * p.heading_sigma_rad if self._heading_known else 0.0)
+        vi = self._incl_var + self._var_incl
+        vh = self._var_head + (self._head_var if self._heading_known else 0.0)
         return (vi, vi, vh)
 
     def set_gyro_bias(self, bias_rad_s: tuple[float, float, float], sigma_rad_s: float) -> bool:
