@@ -49,8 +49,9 @@ SLOW_ENGINE = '''
     # Ctrl-C as in a terminal, even when the suite runs with SIGINT ignored (started in the background by a
     # non-interactive shell: children inherit the ignore, and Python then installs no handler).
     signal.signal(signal.SIGINT, signal.default_int_handler)
-    # The filter's update: every path (message by message, and the bulk path's one engine call per chunk) calls it.
-    _update = OrientationFilter.update
+    # The filter's update on the floats: every path (message by message, and the bulk path's one engine call per
+    # chunk) calls it (update() itself only unpacks into it).
+    _update = OrientationFilter._update_floats
     _mark = os.environ.get('CCF_TEST_MARK')
     _n = [0]
 
@@ -61,7 +62,7 @@ SLOW_ENGINE = '''
             Path(_mark).touch()
         return _update(self, *args)
 
-    OrientationFilter.update = _slow
+    OrientationFilter._update_floats = _slow
 '''
 
 
