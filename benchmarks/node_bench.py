@@ -24,9 +24,13 @@ see the same machine load, which on a shared machine changes by the second).
    measurement's own resolution), printed as median, IQR and min-max over the rounds; and ccf_node's own code's
    share of its CPU time per message (``node_share.py``: thread CPU time of the node's per-message code, rclpy's
    publish excluded). Targets: ccf_node <= 0.8 x pass-through per message, our code <= 25 % of ccf_node's.
+   With ``--against PYTHON`` also the node of another install (``node_share.py`` run by that Python, e.g. an older
+   checkout's venv with ccf_ros installed from it) in the same rounds, between the same pass-through chunks (pt, ccf,
+   old, pt2 / pt2, old, ccf, pt), and per round the paired ratios new / old of our code per message and of the
+   node's CPU per message.
 
 Usage: python benchmarks/node_bench.py [--chunks 20] [--throughput-rounds 3] [--broad] [--node-cmd CMD]
-       [--cpu [--rates 200,400,1000] [--chunk-s 2]]
+       [--cpu [--rates 200,400,1000] [--chunk-s 2] [--against PYTHON]]
 (sets ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; uses ROS_DOMAIN_ID if set, else a free domain of 215-232, locked for the run)
 """
 
@@ -67,7 +71,7 @@ BROAD = HERE.parents[1] / 'shared' / 'data' / 'broad' / '07_undisturbed_fast_rot
 DEFAULTS = all_defaults()
 QOS_IN = (str(DEFAULTS['qos_reliability']), int(DEFAULTS['qos_depth']))
 _STAMP = struct.Struct('<iI')  # header stamp right after the 4-byte CDR encapsulation header
-NAMESPACES = {'pass-through': 'pt', 'ccf_node': 'ccf', 'pass-through 2': 'pt2'}
+NAMESPACES = {'pass-through': 'pt', 'ccf_node': 'ccf', 'ccf_node old': 'ccf_old', 'pass-through 2': 'pt2'}
 
 
 def recorder(conn, namespaces: list[str]) -> None:
@@ -130,11 +134,14 @@ def cpu_s(pid: int) -> float:
 class Rig:
     """Both nodes (subprocesses), the feeder (this process) and the recorder (a child process)."""
 
-    def __init__(self, cmds: dict[str, list[str]]) -> None:
+    def __init__(self, cmds: dict[str, list[str]], envs: dict[str, dict[str, str]] | None = None) -> None:
+        """``envs``: more environment variables for some nodes (by label)."""
         import multiprocessing as mp
 
+        envs = envs or {}
         self.procs = {label: subprocess.Popen(cmd + ['-r', f'__ns:=/{NAMESPACES[label]}'],
-                                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                              env={**os.environ, **envs.get(label, {})})
                       for label, cmd in cmds.items()}
         spawn = mp.get_context('spawn')
         self.conn, child = spawn.Pipe()
@@ -262,10 +269,13 @@ def main() -> None:
     ap.add_argument('--rates', default='200,400,1000', help='--cpu: input rates, Hz, comma-separated')
     ap.add_argument('--ccf-args', default='', help='--cpu: more ROS arguments for ccf_node (e.g. "-p use_mag:=false")')
     ap.add_argument('--chunk-s', type=float, default=2.0, help='--cpu: length of one chunk, s')
+    ap.add_argument('--against', metavar='PYTHON',
+                    help='--cpu: also run the node of the ccf_ros that PYTHON imports (e.g. /work/main/.venv/bin/python) '
+                         'in the same rounds, and print the paired ratios new / old')
     args = ap.parse_args()
     if args.cpu:
         cpu_per_message(args.chunks, tuple(float(r) for r in args.rates.split(',')), args.ccf_args.split(),
-                        args.chunk_s)
+                        args.chunk_s, args.against)
     else:
         throughput_and_latency(args)
 
@@ -347,7 +357,7 @@ def throughput_and_latency(args: argparse.Namespace) -> None:
 
 
 def cpu_per_message(chunks: int, rates: tuple[float, ...] = (200.0, 400.0, 1000.0),
-                    ccf_args: list[str] | None = None, chunk_s: float = 2.0) -> None:
+                    ccf_args: list[str] | None = None, chunk_s: float = 2.0, against: str | None = None) -> None:
     """CPU time per answered IMU message (with its magnetometer message) of ccf_node and of two identical
     pass-through nodes at each rate, and the share of ccf_node's own per-message code (a fresh set of nodes per rate).
 
@@ -355,23 +365,33 @@ def cpu_per_message(chunks: int, rates: tuple[float, ...] = (200.0, 400.0, 1000.
     ccf_node chunk lies between the two pass-through chunks of its round, so a load that drifts over a round falls on
     both sides alike. Per round: ccf_node / mean of the two pass-throughs (the ratio), and pass-through 2 /
     pass-through (A/A: what the measurement itself makes of two identical nodes). Printed: the median of the rounds'
-    ratios, their interquartile range and min-max."""
+    ratios, their interquartile range and min-max.
+
+    ``against``: a Python whose ccf_ros runs as ``ccf_node old`` in the same rounds (after ccf_node, before
+    pass-through 2; reversed in every other round); per round the paired ratios ccf_node / ccf_node old of our code
+    per message and of the node's CPU per message."""
     import tempfile
 
     print(f'ROS_DOMAIN_ID={os.environ["ROS_DOMAIN_ID"]}, input QoS {QOS_IN[0]} depth {QOS_IN[1]}; {chunks} rounds of '
-          f'{chunk_s:g} s chunks per node and rate, interleaved (pt, ccf, pt2 / pt2, ccf, pt); CPU from '
-          f'/proc/PID/task/*/schedstat; load average {os.getloadavg()[0]:.1f}', flush=True)
+          f'{chunk_s:g} s chunks per node and rate, interleaved (pt, ccf, {"old, " if against else ""}pt2 / pt2, '
+          f'{"old, " if against else ""}ccf, pt); CPU from /proc/PID/task/*/schedstat; load average '
+          f'{os.getloadavg()[0]:.1f}', flush=True)
     passthrough = [sys.executable, str(HERE / 'passthrough_node.py'), '--ros-args']
-    cmds = {'pass-through': passthrough,
-            'ccf_node': [sys.executable, str(HERE / 'node_share.py'), '--ros-args', '--log-level', 'error',
-                         *(ccf_args or [])],
-            'pass-through 2': passthrough}
+    share_args = [str(HERE / 'node_share.py'), '--ros-args', '--log-level', 'error', *(ccf_args or [])]
+    cmds = {'pass-through': passthrough, 'ccf_node': [sys.executable, *share_args]}
+    if against:
+        cmds['ccf_node old'] = [against, *share_args]
+    cmds['pass-through 2'] = passthrough
+    nodes = [label for label in cmds if label.startswith('ccf_node')]
+    for label in nodes:
+        where = subprocess.run([cmds[label][0], '-c', 'import ccf_ros; print(ccf_ros.__file__)'], cwd='/',
+                               capture_output=True, text=True).stdout.strip()
+        print(f'  {label}: {cmds[label][0]}, ccf_ros from {where}', flush=True)
     labels = list(cmds)
     rows = []
     for rate in rates:
-        share_file = Path(tempfile.mkstemp(prefix='ccf_share_')[1])
-        os.environ['CCF_SHARE_OUT'] = str(share_file)
-        rig = Rig(cmds)
+        share_files = {label: Path(tempfile.mkstemp(prefix='ccf_share_')[1]) for label in nodes}
+        rig = Rig(cmds, {label: {'CCF_SHARE_OUT': str(f)} for label, f in share_files.items()})
         cpu: dict[str, list[float]] = {k: [] for k in labels}  # us per answered message, per chunk
         lost: dict[str, int] = dict.fromkeys(labels, 0)
         answered: dict[str, list[str]] = {k: [] for k in labels}
@@ -389,39 +409,68 @@ def cpu_per_message(chunks: int, rates: tuple[float, ...] = (200.0, 400.0, 1000.
                     cpu[label].append(cpu_used / max(n_answered, 1) * 1e6)
         finally:
             codes = rig.close()
-        head, *lines = share_file.read_text().splitlines()
-        share_file.unlink()
-        ours_ns, n_imu, _ = (int(v) for v in head.split())
-        c, a1, a2 = (np.array(cpu[k]) for k in ('ccf_node', 'pass-through', 'pass-through 2'))
-        ratio, aa = c / ((a1 + a2) / 2), a2 / a1
-        # Our code per message over exactly the messages of each ccf_node chunk (the same messages as its CPU
-        # time), and its share of that chunk's CPU per message; the median of the chunks, as for the ratio.
-        timeline = np.array([[float(v) for v in line.split()] for line in lines]).reshape(-1, 2)
-        ours_chunk = []
-        for a, b in windows['ccf_node']:
-            i, j = np.searchsorted(timeline[:, 0], (a, b))
-            before = timeline[i - 1, 1] if i > 0 else 0.0
-            ours_chunk.append((timeline[j - 1, 1] - before) / 1e3 / max(j - i, 1) if j > i else np.nan)
-        share = np.array(ours_chunk) / c
-        # (And over every IMU message the node took, the rig's start-up probe included: the figure before.)
-        ours_all = ours_ns / 1e3 / max(n_imu, 1)
-        ours = float(np.median(ours_chunk))
+        a1, a2 = np.array(cpu['pass-through']), np.array(cpu['pass-through 2'])
+        aa = a2 / a1
         per = {k: float(np.median(v)) for k, v in cpu.items()}
-        rows.append((rate, per, ratio, aa, ours, share))
-        print(f'  {rate:6.0f} Hz per round: ratio {" ".join(f"{x:.2f}" for x in ratio)}; A/A '
-              f'{" ".join(f"{x:.2f}" for x in aa)}; answered/sent {answered}', flush=True)
-        print(f'  {rate:6.0f} Hz: median us/message ccf_node {per["ccf_node"]:.1f}, pass-through '
-              f'{per["pass-through"]:.1f}, pass-through 2 {per["pass-through 2"]:.1f}; ratio {_spread(ratio)}; '
-              f'A/A {_spread(aa)}; our code {ours:.1f} us/message, {_spread(100 * share)} % of ccf_node\'s per '
-              f'chunk (over all messages taken: {ours_all:.1f} us/message = {100 * ours_all / per["ccf_node"]:.0f} % of '
-              f'the median); lost {lost}; exit codes {codes}; load average {os.getloadavg()[0]:.1f}', flush=True)
-    print('rate Hz | ccf_node us/msg | pass-through us/msg | ratio: median [IQR] (target <= 0.8) | A/A median [IQR] '
-          '(1.00 +- 0.05) | our code us/msg | share per chunk: median [IQR] (<= 25 %)')
-    for rate, per, ratio, aa, ours, share in rows:
-        print(f'{rate:7.0f} | {per["ccf_node"]:15.1f} | {per["pass-through"]:19.1f} | '
-              f'{np.median(ratio):.2f} [{np.percentile(ratio, 25):.2f}-{np.percentile(ratio, 75):.2f}] | '
-              f'{np.median(aa):.2f} [{np.percentile(aa, 25):.2f}-{np.percentile(aa, 75):.2f}] | {ours:15.1f} | '
-              f'{np.median(100 * share):.0f} % [{np.percentile(100 * share, 25):.0f}-{np.percentile(100 * share, 75):.0f}]')
+        results = {}
+        for label in nodes:
+            c = np.array(cpu[label])
+            ours_chunk, ours_all = _ours_per_chunk(share_files[label], windows[label])
+            share = ours_chunk / c
+            results[label] = (c / ((a1 + a2) / 2), ours_chunk, share)
+            ours = float(np.median(ours_chunk))
+            print(f'  {rate:6.0f} Hz {label} per round: ratio {" ".join(f"{x:.2f}" for x in results[label][0])}; '
+                  f'our code share % {" ".join(f"{100 * x:.1f}" for x in share)}', flush=True)
+            print(f'  {rate:6.0f} Hz {label}: median us/message {per[label]:.1f}; ratio {_spread(results[label][0])}; '
+                  f'our code {ours:.1f} us/message, {_spread(100 * share)} % of the node\'s per chunk (over all '
+                  f'messages taken: {ours_all:.1f} us/message = {100 * ours_all / per[label]:.0f} % of the median)',
+                  flush=True)
+        print(f'  {rate:6.0f} Hz: median us/message pass-through {per["pass-through"]:.1f}, pass-through 2 '
+              f'{per["pass-through 2"]:.1f}; A/A per round {" ".join(f"{x:.2f}" for x in aa)}, {_spread(aa)}; '
+              f'answered/sent {answered}; lost {lost}; exit codes {codes}; load average {os.getloadavg()[0]:.1f}',
+              flush=True)
+        paired = None
+        if against:
+            paired = (results['ccf_node'][1] / results['ccf_node old'][1],
+                      np.array(cpu['ccf_node']) / np.array(cpu['ccf_node old']))
+            print(f'  {rate:6.0f} Hz paired new / old per round: our code per message '
+                  f'{" ".join(f"{x:.2f}" for x in paired[0])}, {_spread(paired[0])}; node CPU per message '
+                  f'{" ".join(f"{x:.2f}" for x in paired[1])}, {_spread(paired[1])}', flush=True)
+        rows.append((rate, per, aa, results, paired))
+    print('rate Hz | node         | node us/msg | pass-through us/msg | ratio: median [IQR] (target <= 0.8) | '
+          'A/A median [IQR] (1.00 +- 0.05) | our code us/msg | share per chunk: median [IQR] (<= 25 %)')
+    for rate, per, aa, results, _ in rows:
+        for label, (ratio, ours_chunk, share) in results.items():
+            print(f'{rate:7.0f} | {label:12s} | {per[label]:11.1f} | {per["pass-through"]:19.1f} | '
+                  f'{_median_iqr(ratio)} | {_median_iqr(aa)} | {np.median(ours_chunk):15.1f} | '
+                  f'{_median_iqr(100 * share, "{:.1f}")} %')
+    if against:
+        print('rate Hz | paired new / old per round: our code per message, median [IQR] | node CPU per message, '
+              'median [IQR]')
+        for rate, _, _, _, paired in rows:
+            print(f'{rate:7.0f} | {_median_iqr(paired[0], "{:.3f}"):55s} | {_median_iqr(paired[1], "{:.3f}")}')
+
+
+def _ours_per_chunk(share_file: Path, windows: list[tuple[float, float]]) -> tuple[np.ndarray, float]:
+    """Our code's time per message (us) over exactly the messages of each chunk (the same messages as its CPU
+    time), from node_share.py's file (which is removed), and over every IMU message the node took (the rig's
+    start-up probe included: the figure before)."""
+    head, *lines = share_file.read_text().splitlines()
+    share_file.unlink()
+    ours_ns, n_imu, _ = (int(v) for v in head.split())
+    timeline = np.array([[float(v) for v in line.split()] for line in lines]).reshape(-1, 2)
+    ours_chunk = []
+    for a, b in windows:
+        i, j = np.searchsorted(timeline[:, 0], (a, b))
+        before = timeline[i - 1, 1] if i > 0 else 0.0
+        ours_chunk.append((timeline[j - 1, 1] - before) / 1e3 / max(j - i, 1) if j > i else np.nan)
+    return np.array(ours_chunk), ours_ns / 1e3 / max(n_imu, 1)
+
+
+def _median_iqr(x: np.ndarray, fmt: str = '{:.2f}') -> str:
+    """``median [25th-75th percentile]`` of per-round values."""
+    return (f'{fmt.format(np.median(x))} [{fmt.format(np.percentile(x, 25))}-'
+            f'{fmt.format(np.percentile(x, 75))}]')
 
 
 def _spread(x: np.ndarray) -> str:

@@ -74,6 +74,17 @@ def test_output_frame_is_set_on_the_path_object():
     assert not fast.reframes and cdr.frame_id(fast.answer(src, off, out)[0]) == 'imu_link'
 
 
+@pytest.mark.parametrize('frame_id', ['', 'a', 'imu_link', 'abcdefg', 'abcdefgh', 'x' * 13])
+def test_fast_path_reads_as_cdr_read_imu_for_every_header_length(frame_id):
+    """FastCdrPath.read_imu writes cdr.read_imu out (a call less per message): the copies agree, on every padding."""
+    _, _, raw = make_imu(frame_id)
+    fast = FastCdrPath()
+    t, off, gyr, acc = cdr.read_imu(raw)
+    assert fast.read_imu(raw) == (t, fast, raw, off, gyr, acc)
+    assert (t, gyr, acc) == (1700000001 + 123456789 * 1e-9, (1.0, 2.0, 3.0), (4.0, 5.0, 6.0))
+    assert cdr.frame_id(fast.answer(raw, off, Output((0.0, 0.0, 0.0, 1.0), (0.0,) * 9, (0.0,) * 3, 0))[0]) == frame_id
+
+
 def test_fast_path_refuses_an_imu_shorter_than_its_tail():
     _, _, raw = make_imu('imu_link')
     off = cdr.read_imu(raw)[1]

@@ -15,7 +15,6 @@ from collections.abc import Sequence
 from typing import Any
 
 from ..frames import rotate_covariance
-from .convert import seconds
 
 Vec3 = tuple[float, float, float]
 
@@ -27,7 +26,12 @@ _F13 = struct.Struct('<13d')  # orientation (4) and orientation_covariance (9), 
 
 
 def _body(raw: bytes | bytearray | memoryview, pos: int = 4) -> tuple[int, int, int]:
-    """sec, nanosec and the offset (in ``raw``) of the first float64 field after the header."""
+    """sec, nanosec and the offset (in ``raw``) of the first float64 field after the header.
+
+    The rule, with the header at 4 (after the encapsulation): ``off = ((n + 19) & ~7) + 4`` for a frame_id of ``n``
+    bytes with its NUL. Written out in :func:`read_imu`, :func:`read_mag` and ``FastCdrPath.read_imu`` (per message:
+    a call costs as much as the reading); those copies change together with this function.
+    """
     sec, nsec, n = _HDR.unpack_from(raw, pos)
     end = pos + 12 + n - 4  # relative to the data start, then aligned to 8
     off = (end + 7) & ~7
@@ -36,15 +40,17 @@ def _body(raw: bytes | bytearray | memoryview, pos: int = 4) -> tuple[int, int, 
 
 def read_imu(raw: bytes | bytearray | memoryview) -> tuple[float, int, Vec3, Vec3]:
     """Stamp (s), offset of ``orientation``, angular velocity (rad/s), linear acceleration (m/s²) of an Imu."""
-    sec, nsec, off = _body(raw)
+    sec, nsec, n = _HDR.unpack_from(raw, 4)
+    off = ((n + 19) & ~7) + 4  # _body's rule, written out (see there)
     # Annotated, not cast(): typing.cast is a function call per message.
     gyr: Vec3 = _F3.unpack_from(raw, off + ANGULAR_VELOCITY)
     acc: Vec3 = _F3.unpack_from(raw, off + LINEAR_ACCELERATION)
-    return seconds(sec, nsec), off, gyr, acc
+    return sec + nsec * 1e-9, off, gyr, acc  # convert.seconds' rule, written out (changes together with it)
 
 
 def patch_imu(buf: bytearray, off: int, xyzw: tuple[float, float, float, float], cov: tuple[float, ...]) -> None:
-    """Write orientation (x, y, z, w) and orientation_covariance (9) into a serialized Imu at ``off``."""
+    """Write orientation (x, y, z, w) and orientation_covariance (9) into a serialized Imu at ``off``. (Written out
+    in ``FastCdrPath.answer``: changes together with it.)"""
     _F13.pack_into(buf, off, *xyzw, *cov)
 
 
@@ -64,9 +70,9 @@ def patch_imu_vectors(buf: bytearray, off: int, gyr: Vec3 | None, acc: Vec3 | No
 
 def read_mag(raw: bytes | bytearray | memoryview) -> tuple[float, Vec3]:
     """Stamp (s) and magnetic field of a serialized MagneticField."""
-    sec, nsec, off = _body(raw)
-    field: Vec3 = _F3.unpack_from(raw, off)
-    return seconds(sec, nsec), field
+    sec, nsec, n = _HDR.unpack_from(raw, 4)
+    field: Vec3 = _F3.unpack_from(raw, ((n + 19) & ~7) + 4)  # _body's rule, written out (see there)
+    return sec + nsec * 1e-9, field  # convert.seconds' rule, written out (changes together with it)
 
 
 def vector3_stamped(imu_raw: bytes | bytearray | memoryview, imu_off: int, v: Vec3) -> bytes:

@@ -18,6 +18,8 @@ def seconds(sec: int, nanosec: int) -> float:
     """A ``builtin_interfaces/Time`` (``sec``, ``nanosec``) as float seconds.
 
     The one stamp rule: the same stamp gives the same float wherever it is read (node, replay, bag readers).
+    Written out in :func:`~ccf_ros.messages.cdr.read_imu`, ``read_mag`` and ``FastCdrPath.read_imu`` (a call per
+    message costs): those copies change together with this function.
     """
     return sec + nanosec * 1e-9
 

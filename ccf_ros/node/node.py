@@ -250,6 +250,8 @@ class CcfNode(Node):
         self._settings = {name: coerce(name, self.get_parameter(name).value) for name in self._defaults}
         filt, adapter = build(self._effective(self._settings), strict=False)
         self.engine = ImuEngine(filt, adapter)
+        #: whether to ask the engine per sample if it wants the sensor frame (narrowed by _cache_settings)
+        self._frame_wanted = True
         # The bias_file's warnings: those of the load (above) now, later ones as they come.
         for text in self.engine.warnings:
             self.get_logger().warning(text)
@@ -458,6 +460,9 @@ class CcfNode(Node):
         """Settings read per message, as attributes (a dict lookup per message is measurable); publishers that
         were switched on are made here."""
         st = self._settings
+        # False only where the engine surely does not want the sensor frame (no state file): the property is not
+        # asked per message then.
+        self._frame_wanted = bool(self.engine.settings.bias_file)
         rate = float(st['gyro_bias_rate_hz'])
         self._bias_period = 1.0 / rate if rate > 0.0 else 0.0
         use_mag = bool(st['use_mag'])
@@ -472,7 +477,7 @@ class CcfNode(Node):
         self._hint_ang2 = float(st['motion_hint_angular_rad_s']) ** 2
         self._hint_timeout = float(st['motion_hint_timeout_s'])
         if not self.is_open:  # a lifecycle node not active: the publishers are made on activation
-            self._debug = self._steady = self._tf = False
+            self._debug = self._steady = self._tf = self._extras = False
             return
         if self._hint_topic != self._resolved_hint_topic():
             self._subscribe_motion_hint()
@@ -495,6 +500,7 @@ class CcfNode(Node):
             else:
                 self.pub_tf = self.create_publisher(self._tf_type, '/tf', TF_QOS, event_callbacks=self._quiet)
         self._tf = bool(st['publish_tf']) and self.pub_tf is not None
+        self._extras = self._debug or self._tf  # (one test per message instead of two)
         # Output frame: the engine turns the vectors; the messages get the new frame_id and turned covariances.
         out_frame = str(st['output_frame_id'])
         self._rot = self.engine.output_rotation
@@ -620,7 +626,9 @@ class CcfNode(Node):
         if t <= self._t_imu_done:
             self._mag_late(t)
         self.engine.on_mag(t, field)
-        self.stats.on_mag(now)
+        stats = self.stats
+        stats.last_mag = now  # InputStats.on_mag written out (changes together with it)
+        stats.n_mag += 1
         released = self.sync.on_mag(t, now)
         if released:
             self._answer_all(released)
@@ -644,13 +652,34 @@ class CcfNode(Node):
             self.stats.n_unreadable += 1
             self._warn_throttled(f'unreadable IMU message ({len(data)} bytes) dropped: {err}')
             return
-        t = item[0]
+        t, _, src, off, gyr, acc = item
         self.stats.on_imu(t, now)
         sync = self.sync
-        if sync.on_imu(t, item, now):
-            self._answer(*item)
-        elif len(sync) == 1:
-            self._arm_timer()
+        if not sync.on_imu(t, item, now):
+            if len(sync) == 1:
+                self._arm_timer()
+            return
+        # Not held (the common case): _answer's steps written out, as a call per message costs about as much as the
+        # node's own steps; this copy and _answer change together.
+        engine = self.engine
+        if self._frame_wanted and engine.wants_sensor_frame:
+            engine.set_sensor_frame(path.frame_id(src))
+        out = engine.on_imu(t, gyr, acc)
+        done = t + MAG_TOLERANCE_S
+        if done > self._t_imu_done or done < self._t_imu_done - JUMP_BACK_RESET_S:
+            self._t_imu_done = done
+        if out is None:
+            self._warn_unadvanced(t, out)
+            return
+        if out.status >= ANSWERED_BELOW:
+            self._warn_unadvanced(t, out)
+        imu, src, off = path.answer(src, off, out)
+        self.pub_imu.publish(imu)
+        clock = engine.clock_s
+        if clock - self._last_bias_t >= self._bias_period or clock < self._last_bias_t:
+            self._publish_bias(clock, path, src, off, out)
+        if self._extras:
+            self._publish_extras(path, src, off, out, acc)
 
     def _arm_timer(self) -> None:
         """A first sample is held: make the timer fire by its deadline (HOLD_S from now), unless it fires sooner."""
@@ -729,27 +758,53 @@ class CcfNode(Node):
         """Run one IMU sample through the engine and publish its answer (same bytes + orientation + covariance).
 
         Every sample is answered once an orientation exists: one that cannot advance the filter (repeated or
-        backward stamp, non-finite rate) with the current orientation, counted in the diagnostics.
+        backward stamp, non-finite rate) with the current orientation, counted in the diagnostics. (Written out in
+        :meth:`_imu` for a sample that is not held: the two change together.)
         """
-        if self.engine.wants_sensor_frame:
-            self.engine.set_sensor_frame(path.frame_id(src))
-        out = self.engine.on_imu(t, gyr, acc)
+        engine = self.engine
+        if self._frame_wanted and engine.wants_sensor_frame:
+            engine.set_sensor_frame(path.frame_id(src))
+        out = engine.on_imu(t, gyr, acc)
         # The latest stamp processed, not the last: a backward stamp in between must not hide a late sample; a clock
         # jump back (bag loop) starts a new timeline.
         done = t + MAG_TOLERANCE_S
         if done > self._t_imu_done or done < self._t_imu_done - JUMP_BACK_RESET_S:
             self._t_imu_done = done
         if out is None:
-            self._warn_throttled(f'sample at t={t:.6f} s skipped: no orientation yet (no valid accelerometer sample)')
+            self._warn_unadvanced(t, out)
             return
         if out.status >= ANSWERED_BELOW:
-            self._warn_throttled(f'sample at t={t:.6f} s could not advance the filter (answered with the current '
-                                 f'orientation); so far: {self.engine.skipped_by_reason()}')
+            self._warn_unadvanced(t, out)
         # In the output frame if one is set; the bias, debug and TF messages take the answer's header.
         imu, src, off = path.answer(src, off, out)
         self.pub_imu.publish(imu)
-        if self._bias_due(self.engine.clock_s):
+        # imu/gyro_bias at up to gyro_bias_rate_hz by the filter's clock (the stamps, or constant_dt's clock when the
+        # stamps are not used); a clock going back publishes at once.
+        clock = engine.clock_s
+        if clock - self._last_bias_t >= self._bias_period or clock < self._last_bias_t:
+            self._publish_bias(clock, path, src, off, out)
+        if self._extras:
+            self._publish_extras(path, src, off, out, acc)
+
+    def _warn_unadvanced(self, t: float, out: Output | None) -> None:
+        """The (throttled) warning for a sample at ``t`` (s) without an answer (``out`` None: no orientation yet) or
+        answered with the current orientation (it could not advance the filter)."""
+        if out is None:
+            self._warn_throttled(f'sample at t={t:.6f} s skipped: no orientation yet (no valid accelerometer sample)')
+        else:
+            self._warn_throttled(f'sample at t={t:.6f} s could not advance the filter (answered with the current '
+                                 f'orientation); so far: {self.engine.skipped_by_reason()}')
+
+    def _publish_bias(self, clock: float, path: Path[Any], src: Any, off: int, out: Output) -> None:
+        """imu/gyro_bias is due at the filter's clock ``clock`` (s): published only while someone subscribes (a DDS
+        write costs as much as the rest of a message at 200 Hz, and a volatile topic gives a later subscriber nothing
+        from before anyway); the cadence is kept either way."""
+        self._last_bias_t = clock
+        if self.pub_bias.get_subscription_count() > 0:
             self.pub_bias.publish(path.stamped(src, off, out.bias))
+
+    def _publish_extras(self, path: Path[Any], src: Any, off: int, out: Output, acc: Vec3) -> None:
+        """The debug topics and the TF, as switched on (publish_debug_topics, publish_tf)."""
         if self._debug:
             self._publish_debug(path, src, off, out, acc)
         if self._tf:
@@ -785,16 +840,6 @@ class CcfNode(Node):
         if self.pub_tf is None or self._tf_type is None:  # publish_tf without tf2_msgs: warned once, no TF
             return
         self.pub_tf.publish(self._tf_type(transforms=[tr]))
-
-    def _bias_due(self, t: float) -> bool:
-        """imu/gyro_bias at up to gyro_bias_rate_hz, by the filter's clock ``t`` (s: the stamps, or constant_dt's
-        clock when the stamps are not used); a clock going back publishes at once. Only while someone subscribes:
-        a DDS write costs as much as the rest of a message at 200 Hz, and a volatile topic gives a later subscriber
-        nothing from before anyway (the cadence is kept either way)."""
-        if t - self._last_bias_t >= self._bias_period or t < self._last_bias_t:
-            self._last_bias_t = t
-            return self.pub_bias.get_subscription_count() > 0
-        return False
 
     def _warn_throttled(self, text: str, kind: str = '') -> None:
         """A warning at most every 5 s per ``kind`` (one kind's flood does not hide another's)."""

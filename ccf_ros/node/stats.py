@@ -93,7 +93,7 @@ class InputStats:
         self._n_since = 0
 
     def on_mag(self, now: float) -> None:
-        """A magnetometer sample arrived at ``now``."""
+        """A magnetometer sample arrived at ``now``. (Written out in ``CcfNode._mag``: the two change together.)"""
         self.last_mag = now
         self.n_mag += 1
 

@@ -115,6 +115,8 @@ class ImuMagSync(Generic[T]):
         self._hold_max = 0.0
 
     # --- verdicts ---------------------------------------------------------------------------------------------
+    # (_matched and _jumped_back are written out on the common path of on_imu and on_mag, where a call per message
+    # costs as much as their bodies: those copies change together with them.)
     def _matched(self) -> None:
         self._streak += 1
         if self._streak >= self.lockstep_after:
@@ -141,11 +143,16 @@ class ImuMagSync(Generic[T]):
         """An IMU sample with stamp ``t`` arrived at ``now``. True: process ``item`` now; False: it is held."""
         if not self.enabled:
             return True
-        if self._jumped_back(t):
+        mag_t = self._mag_t
+        if t < mag_t - JUMP_BACK_RESET_S:  # _jumped_back
             self._new_timeline()
-        if t == self._mag_t or t in self._mag_recent:
-            self._matched()  # its magnetometer sample came first
-        elif t < self._mag_t:
+            mag_t = self._mag_t
+        if t == mag_t or t in self._mag_recent:
+            # Its magnetometer sample came first: _matched.
+            self._streak += 1
+            if self._streak >= self.lockstep_after:
+                self._undecided = False
+        elif t < mag_t:
             self._skipped()  # the magnetometer is already past this stamp: no sample of its own
         else:
             # Its magnetometer sample may be in flight (a full window of stamps without any drops the oldest).
@@ -162,8 +169,8 @@ class ImuMagSync(Generic[T]):
 
     def on_mag(self, t: float, now: float) -> Sequence[T]:
         """A magnetometer sample with stamp ``t`` arrived at ``now``: the held samples it releases, in order."""
-        released: list[T] = []
-        if self._jumped_back(t):
+        released: list[T] | None = None
+        if t < self._mag_t - JUMP_BACK_RESET_S:  # _jumped_back
             # The old timeline's held samples will not get theirs: process them now, then start over.
             released = self.flush(now)
             self.reset()
@@ -183,9 +190,9 @@ class ImuMagSync(Generic[T]):
         held = self._held
         if not held:
             return released or _NOTHING
+        out = released or []
         if not self._undecided and self._streak < self.lockstep_after:
-            return released + self.flush(now)  # not (or no longer) in lock-step: nothing to wait for
-        out = released
+            return out + self.flush(now)  # not (or no longer) in lock-step: nothing to wait for
         while held and held[0][0] <= t:
             out.append(self._release(now))
         return out
