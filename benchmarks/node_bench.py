@@ -270,7 +270,7 @@ def main() -> None:
     ap.add_argument('--ccf-args', default='', help='--cpu: more ROS arguments for ccf_node (e.g. "-p use_mag:=false")')
     ap.add_argument('--chunk-s', type=float, default=2.0, help='--cpu: length of one chunk, s')
     ap.add_argument('--against', metavar='PYTHON',
-                    help='--cpu: also run the node of the ccf_ros that PYTHON imports (e.g. /work/main/.venv/bin/python) '
+                    help='--cpu: also run the node of the ccf_ros that PYTHON imports (e.g. an older checkout\'s .venv/bin/python) '
                          'in the same rounds, and print the paired ratios new / old')
     args = ap.parse_args()
     if args.cpu:
@@ -384,7 +384,7 @@ def cpu_per_message(chunks: int, rates: tuple[float, ...] = (200.0, 400.0, 1000.
     cmds['pass-through 2'] = passthrough
     nodes = [label for label in cmds if label.startswith('ccf_node')]
     for label in nodes:
-        where = subprocess.run([cmds[label][0], '-c', 'import ccf_ros; print(ccf_ros.__file__)'], cwd='/',
+        where = subprocess.run([cmds[label][0], '-c', 'import sys, ccf_ros; print(ccf_ros.__file__, "on Python", sys.version.split()[0])'], cwd='/',
                                capture_output=True, text=True).stdout.strip()
         print(f'  {label}: {cmds[label][0]}, ccf_ros from {where}', flush=True)
     labels = list(cmds)

@@ -97,9 +97,9 @@ def main() -> None:  # noqa: C901 (one flat list of stages, each a closure over 
 
     def filter_alone() -> None:
         f = make_engine(merged, strict).filter
-        update = f.update
-        for t, g, a, m in rows:
-            update(t, g, a, m)
+        update = f._update_floats  # (what the engine calls per sample: update() only unpacks into it)
+        for t, (gx, gy, gz), (ax, ay, az), m in rows:
+            update(t, gx, gy, gz, ax, ay, az, m)
 
     def engine_alone() -> None:
         e = make_engine(merged, strict)
@@ -135,7 +135,7 @@ def main() -> None:  # noqa: C901 (one flat list of stages, each a closure over 
 
     stages: dict[str, Callable[[], None]] = {
         'bare rosbags read (IMU+mag records)': bare, 'bulk reader (fast_batches)': read, 'decode_chunk': decode,
-        'filter alone (update)': filter_alone, 'feed_chunk, no health (glue+filter)': engine_alone,
+        'filter alone (_update_floats)': filter_alone, 'feed_chunk, no health (glue+filter)': engine_alone,
         'feed_chunk, no answers, no health': engine_no_answers, 'feed_chunk + health, no answers': engine_health, 'health add_block alone': health,
         'replay() whole': replay_all, 'fleet task, health only': task_health}
     cpu: dict[str, list[float]] = {k: [] for k in stages}
@@ -149,7 +149,7 @@ def main() -> None:  # noqa: C901 (one flat list of stages, each a closure over 
           f'load {os.getloadavg()[0]:.1f}')
     for k, v in med.items():
         print(f'  {k:42s} {v:7.2f} µs   {1e6 / v:10,.0f} samples/CPU s')
-    glue = med['feed_chunk, no health (glue+filter)'] - med['filter alone (update)']
+    glue = med['feed_chunk, no health (glue+filter)'] - med['filter alone (_update_floats)']
     write = (med['replay() whole'] - med['bulk reader (fast_batches)'] - med['decode_chunk']
              - med['feed_chunk, no health (glue+filter)'])
     print(f'  => engine glue (feed_chunk - filter) {glue:.2f} µs; records+write (replay - read - decode - feed) '

@@ -52,7 +52,9 @@ def load_before(rev: str, name: str = '_ccf_before') -> ModuleType:
     shown = subprocess.run(['git', '-C', str(ROOT), 'show', f'{rev}:ccf_ros/core/ccf.py'], capture_output=True,
                            text=True)
     if shown.returncode != 0:
-        return _load_core_package(rev, name)
+        if 'does not exist' not in shown.stderr and 'exists on disk' not in shown.stderr:
+            raise SystemExit(f'--before {rev}: {shown.stderr.strip()}')  # e.g. a mistyped revision
+        return _load_core_package(rev, name)  # (no ccf.py there: ccf is a package in that revision)
     src = shown.stdout
     path = Path(tempfile.mkdtemp()) / f'{name}.py'
     path.write_text(src)

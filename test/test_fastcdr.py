@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from ccf_ros.messages import cdr as fastcdr
+from ccf_ros.messages.paths import FastCdrPath
 from ccf_ros.offline.bagio import typestore
 
 
@@ -25,7 +26,11 @@ def make_imu(frame_id: str = 'imu_link', nanosec: int = 123456789) -> tuple[Any,
     return hdr, imu, bytes(typestore().serialize_cdr(imu, 'sensor_msgs/msg/Imu'))
 
 
-@pytest.mark.parametrize('frame_id', ['', 'a', 'imu_link', 'abcdefg', 'abcdefgh', 'x' * 13])
+# Every frame_id length mod 8 (the padding after the header differs with it), and a longer one.
+FRAME_IDS = ['x' * k for k in range(9)] + ['imu_link', 'x' * 13]
+
+
+@pytest.mark.parametrize('frame_id', FRAME_IDS)
 def test_read_patch_and_build_match_rosbags(frame_id):
     ts = typestore()
     T = ts.types
@@ -64,6 +69,8 @@ def test_an_answer_filled_into_a_message_serializes_to_the_patched_bytes(vectors
     fastcdr.patch_imu(buf, off, out.orientation_xyzw, out.covariance)
     fastcdr.patch_imu_vectors(buf, off, out.angular_velocity, out.linear_acceleration)
     fill_imu(imu, out, np.array(out.covariance))
+    # FastCdrPath.answer writes patch_imu out (and calls patch_imu_vectors): the same bytes.
+    assert FastCdrPath().answer(raw, off, out)[1] == buf
     assert bytes(typestore().serialize_cdr(imu, 'sensor_msgs/msg/Imu')) == bytes(buf)
     tail = off + fastcdr.ANGULAR_VELOCITY
     assert (bytes(buf[tail:]) != raw[tail:]) == vectors  # rate and acceleration replaced only when given

@@ -25,23 +25,16 @@ _F3 = struct.Struct('<3d')
 _F13 = struct.Struct('<13d')  # orientation (4) and orientation_covariance (9), adjacent
 
 
-def _body(raw: bytes | bytearray | memoryview, pos: int = 4) -> tuple[int, int, int]:
-    """sec, nanosec and the offset (in ``raw``) of the first float64 field after the header.
-
-    The rule, with the header at 4 (after the encapsulation): ``off = ((n + 19) & ~7) + 4`` for a frame_id of ``n``
-    bytes with its NUL. Written out in :func:`read_imu`, :func:`read_mag` and ``FastCdrPath.read_imu`` (per message:
-    a call costs as much as the reading); those copies change together with this function.
-    """
-    sec, nsec, n = _HDR.unpack_from(raw, pos)
-    end = pos + 12 + n - 4  # relative to the data start, then aligned to 8
-    off = (end + 7) & ~7
-    return sec, nsec, off + 4
+# The offset of the first float64 field after the header, with the header at 4 (after the encapsulation) and a
+# frame_id of n bytes with its NUL: ((n + 19) & ~7) + 4 (4 + 8 + 4 + n bytes, aligned to 8 from the data start).
+# Written out in read_imu, read_mag and FastCdrPath.read_imu (per message: a call would cost as much as the reading)
+# and vectorized in stamped_columns; the copies change together (tested for every n mod 8).
 
 
 def read_imu(raw: bytes | bytearray | memoryview) -> tuple[float, int, Vec3, Vec3]:
     """Stamp (s), offset of ``orientation``, angular velocity (rad/s), linear acceleration (m/s²) of an Imu."""
     sec, nsec, n = _HDR.unpack_from(raw, 4)
-    off = ((n + 19) & ~7) + 4  # _body's rule, written out (see there)
+    off = ((n + 19) & ~7) + 4  # the body offset's rule (see above)
     # Annotated, not cast(): typing.cast is a function call per message.
     gyr: Vec3 = _F3.unpack_from(raw, off + ANGULAR_VELOCITY)
     acc: Vec3 = _F3.unpack_from(raw, off + LINEAR_ACCELERATION)
@@ -71,7 +64,7 @@ def patch_imu_vectors(buf: bytearray, off: int, gyr: Vec3 | None, acc: Vec3 | No
 def read_mag(raw: bytes | bytearray | memoryview) -> tuple[float, Vec3]:
     """Stamp (s) and magnetic field of a serialized MagneticField."""
     sec, nsec, n = _HDR.unpack_from(raw, 4)
-    field: Vec3 = _F3.unpack_from(raw, ((n + 19) & ~7) + 4)  # _body's rule, written out (see there)
+    field: Vec3 = _F3.unpack_from(raw, ((n + 19) & ~7) + 4)  # the body offset's rule (see above)
     return sec + nsec * 1e-9, field  # convert.seconds' rule, written out (changes together with it)
 
 

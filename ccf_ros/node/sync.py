@@ -115,8 +115,8 @@ class ImuMagSync(Generic[T]):
         self._hold_max = 0.0
 
     # --- verdicts ---------------------------------------------------------------------------------------------
-    # (_matched and _jumped_back are written out on the common path of on_imu and on_mag, where a call per message
-    # costs as much as their bodies: those copies change together with them.)
+    # (_matched is written out on the common path of on_imu and on_mag, where a call per message costs as much as its
+    # body: those copies change together with it.)
     def _matched(self) -> None:
         self._streak += 1
         if self._streak >= self.lockstep_after:
@@ -128,10 +128,6 @@ class ImuMagSync(Generic[T]):
         self._streak = 0
 
     # --- per sample -----------------------------------------------------------------------------------------
-    def _jumped_back(self, t: float) -> bool:
-        """``t`` is far behind the magnetometer's latest stamp: the clock jumped back (bag loop, simulation reset)."""
-        return t < self._mag_t - JUMP_BACK_RESET_S
-
     def _new_timeline(self) -> None:
         """Forget the stamps of the old timeline (held samples stay, in order, until released or expired)."""
         held = self._held
@@ -144,7 +140,7 @@ class ImuMagSync(Generic[T]):
         if not self.enabled:
             return True
         mag_t = self._mag_t
-        if t < mag_t - JUMP_BACK_RESET_S:  # _jumped_back
+        if t < mag_t - JUMP_BACK_RESET_S:  # the clock jumped back (bag loop, simulation reset)
             self._new_timeline()
             mag_t = self._mag_t
         if t == mag_t or t in self._mag_recent:
@@ -170,7 +166,7 @@ class ImuMagSync(Generic[T]):
     def on_mag(self, t: float, now: float) -> Sequence[T]:
         """A magnetometer sample with stamp ``t`` arrived at ``now``: the held samples it releases, in order."""
         released: list[T] | None = None
-        if t < self._mag_t - JUMP_BACK_RESET_S:  # _jumped_back
+        if t < self._mag_t - JUMP_BACK_RESET_S:  # the clock jumped back (bag loop, simulation reset)
             # The old timeline's held samples will not get theirs: process them now, then start over.
             released = self.flush(now)
             self.reset()
