@@ -704,11 +704,23 @@ def _assert_as_replay_in_the_nodes_order(res, bag, log, overtakes=0):
     machine there are none; under load a magnetometer sample can still come more than HOLD_S after its IMU sample
     (the node does not wait longer), and after the magnetometer's silence the IMU sample after its first sample can
     overtake it (nothing waits while it is silent). So a late sample is a hold timeout or one of ``overtakes`` (one
-    per silence): any other would be a pairing fault, which the reordered reference would hide."""
+    per silence): any other would be a pairing fault, which the reordered reference would hide.
+
+    Counted in stretches, not samples: when the magnetometer topic stalls under load (its DDS delivery seconds behind
+    the IMU's), one hold timeout ends the waiting and the whole backlog comes late, one stretch of consecutive
+    magnetometer samples (seen: 286 late after 4 timeouts, three suites at once on 2 cores). A pairing fault would
+    scatter late samples, many stretches."""
+    from ccf_ros.messages.cdr import read_mag
+    from ccf_ros.offline.play import load_messages
+
     late = _late_mags(log)
     d = res.diagnostics
     assert len(late) == int(d['magnetometer samples after their IMU sample']), d
-    assert len(late) <= int(d['hold timeouts']) + overtakes, (late, d)
+    mag_stamps = [read_mag(raw)[0] for _, topic, raw in load_messages(bag, [MAG])[1] if topic == MAG]
+    where = {t: i for i, t in enumerate(mag_stamps)}
+    at = sorted(where[t] for t, _ in late)  # (a stamp not in the bag: KeyError, a fault too)
+    stretches = sum(1 for k, i in enumerate(at) if k == 0 or i != at[k - 1] + 1)
+    assert stretches <= int(d['hold timeouts']) + overtakes, (stretches, late[:20], d)
     t_ref, q_ref = _engine_over_bag(bag, late)
     assert len(res.t_s) == res.n_imu_sent == len(t_ref)
     np.testing.assert_array_equal(res.t_s, t_ref)
