@@ -27,10 +27,11 @@ see the same machine load, which on a shared machine changes by the second).
    With ``--against PYTHON`` also the node of another install (``node_share.py`` run by that Python, e.g. an older
    checkout's venv with ccf_ros installed from it) in the same rounds, between the same pass-through chunks (pt, ccf,
    old, pt2 / pt2, old, ccf, pt), and per round the paired ratios new / old of our code per message and of the
-   node's CPU per message.
+   node's CPU per message. With ``--split`` also where ccf_node's own time goes, step by step (wall time per IMU
+   message of each step of ``_mag``/``_imu`` and of the once-a-second timer; its timers add to that run's share).
 
 Usage: python benchmarks/node_bench.py [--chunks 20] [--throughput-rounds 3] [--broad] [--node-cmd CMD]
-       [--cpu [--rates 200,400,1000] [--chunk-s 2] [--against PYTHON]]
+       [--cpu [--rates 200,400,1000] [--chunk-s 2] [--against PYTHON] [--split]]
 (sets ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; uses ROS_DOMAIN_ID if set, else a free domain of 215-232, locked for the run)
 """
 
@@ -272,10 +273,12 @@ def main() -> None:
     ap.add_argument('--against', metavar='PYTHON',
                     help='--cpu: also run the node of the ccf_ros that PYTHON imports (e.g. an older checkout\'s .venv/bin/python) '
                          'in the same rounds, and print the paired ratios new / old')
+    ap.add_argument('--split', action='store_true',
+                    help='--cpu: also time each step of ccf_node\'s per-message code and its timer (adds to the share)')
     args = ap.parse_args()
     if args.cpu:
         cpu_per_message(args.chunks, tuple(float(r) for r in args.rates.split(',')), args.ccf_args.split(),
-                        args.chunk_s, args.against)
+                        args.chunk_s, args.against, args.split)
     else:
         throughput_and_latency(args)
 
@@ -357,7 +360,8 @@ def throughput_and_latency(args: argparse.Namespace) -> None:
 
 
 def cpu_per_message(chunks: int, rates: tuple[float, ...] = (200.0, 400.0, 1000.0),
-                    ccf_args: list[str] | None = None, chunk_s: float = 2.0, against: str | None = None) -> None:
+                    ccf_args: list[str] | None = None, chunk_s: float = 2.0, against: str | None = None,
+                    split: bool = False) -> None:
     """CPU time per answered IMU message (with its magnetometer message) of ccf_node and of two identical
     pass-through nodes at each rate, and the share of ccf_node's own per-message code (a fresh set of nodes per rate).
 
@@ -369,7 +373,8 @@ def cpu_per_message(chunks: int, rates: tuple[float, ...] = (200.0, 400.0, 1000.
 
     ``against``: a Python whose ccf_ros runs as ``ccf_node old`` in the same rounds (after ccf_node, before
     pass-through 2; reversed in every other round); per round the paired ratios ccf_node / ccf_node old of our code
-    per message and of the node's CPU per message."""
+    per message and of the node's CPU per message. ``split``: ccf_node's steps timed (``node_share.py``'s
+    CCF_SPLIT_OUT), printed per rate."""
     import tempfile
 
     print(f'ROS_DOMAIN_ID={os.environ["ROS_DOMAIN_ID"]}, input QoS {QOS_IN[0]} depth {QOS_IN[1]}; {chunks} rounds of '
@@ -391,7 +396,11 @@ def cpu_per_message(chunks: int, rates: tuple[float, ...] = (200.0, 400.0, 1000.
     rows = []
     for rate in rates:
         share_files = {label: Path(tempfile.mkstemp(prefix='ccf_share_')[1]) for label in nodes}
-        rig = Rig(cmds, {label: {'CCF_SHARE_OUT': str(f)} for label, f in share_files.items()})
+        env = {label: {'CCF_SHARE_OUT': str(f)} for label, f in share_files.items()}
+        split_file = Path(tempfile.mkstemp(prefix='ccf_split_')[1]) if split else None
+        if split_file is not None:
+            env['ccf_node']['CCF_SPLIT_OUT'] = str(split_file)
+        rig = Rig(cmds, env)
         cpu: dict[str, list[float]] = {k: [] for k in labels}  # us per answered message, per chunk
         lost: dict[str, int] = dict.fromkeys(labels, 0)
         answered: dict[str, list[str]] = {k: [] for k in labels}
@@ -429,6 +438,8 @@ def cpu_per_message(chunks: int, rates: tuple[float, ...] = (200.0, 400.0, 1000.
               f'{per["pass-through 2"]:.1f}; A/A per round {" ".join(f"{x:.2f}" for x in aa)}, {_spread(aa)}; '
               f'answered/sent {answered}; lost {lost}; exit codes {codes}; load average {os.getloadavg()[0]:.1f}',
               flush=True)
+        if split_file is not None:
+            _print_split(rate, split_file)
         paired = None
         if against:
             paired = (results['ccf_node'][1] / results['ccf_node old'][1],
@@ -449,6 +460,20 @@ def cpu_per_message(chunks: int, rates: tuple[float, ...] = (200.0, 400.0, 1000.
               'median [IQR]')
         for rate, _, _, _, paired in rows:
             print(f'{rate:7.0f} | {_median_iqr(paired[0], "{:.3f}"):55s} | {_median_iqr(paired[1], "{:.3f}")}')
+
+
+def _print_split(rate: float, split_file: Path) -> None:
+    """node_share.py's split (``label\\tns\\tcalls`` lines, inclusive times): us per call and per IMU message."""
+    rows = [line.split('\t') for line in split_file.read_text().splitlines()]
+    split_file.unlink()
+    n_imu = max((int(n) for label, _, n in rows if label.startswith('IMU message')), default=0) or 1
+    print(f'  {rate:6.0f} Hz where ccf_node\'s time goes (wall time, inclusive; {n_imu} IMU messages; the timer runs '
+          'once a second over the node\'s whole life, idle start-up included):')
+    per_message = True
+    for label, ns, n in rows:
+        per_message = per_message and not label.startswith('timer')
+        print(f'    {label:50s} {int(ns) / 1e3 / max(int(n), 1):9.2f} us per call x {int(n):6d}'
+              + (f' = {int(ns) / 1e3 / n_imu:7.2f} us per IMU message' if per_message else ''), flush=True)
 
 
 def _ours_per_chunk(share_file: Path, windows: list[tuple[float, float]]) -> tuple[np.ndarray, float]:
