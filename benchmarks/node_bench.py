@@ -276,6 +276,9 @@ def main() -> None:
     ap.add_argument('--split', action='store_true',
                     help='--cpu: also time each step of ccf_node\'s per-message code and its timer (adds to the share)')
     args = ap.parse_args()
+    if args.split and args.against:
+        # Only ccf_node carries the split's timers: they would count against it in every paired ratio.
+        ap.error('--split and --against: run them separately (the split\'s timers would bias the paired ratios)')
     if args.cpu:
         cpu_per_message(args.chunks, tuple(float(r) for r in args.rates.split(',')), args.ccf_args.split(),
                         args.chunk_s, args.against, args.split)
@@ -468,7 +471,8 @@ def _print_split(rate: float, split_file: Path) -> None:
     split_file.unlink()
     n_imu = max((int(n) for label, _, n in rows if label.startswith('IMU message')), default=0) or 1
     print(f'  {rate:6.0f} Hz where ccf_node\'s time goes (wall time, inclusive; {n_imu} IMU messages; the timer runs '
-          'once a second over the node\'s whole life, idle start-up included):')
+          'once a second and at hold deadlines over the node\'s whole life, start-up included; held samples are answered '
+          'from _mag or the timer, so the indented rows need not add up to their parent):')
     per_message = True
     for label, ns, n in rows:
         per_message = per_message and not label.startswith('timer')

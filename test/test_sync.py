@@ -429,6 +429,21 @@ def test_input_stats_take_jitter_bursts_and_a_slower_rate_for_no_losses():
     assert st.n_lost <= 66  # 1 + 54 while the slower rate becomes the normal one (was ~1000)
     assert st.period_s == pytest.approx(0.01, rel=1e-6)
 
+
+def test_input_stats_count_heavy_losses():
+    """Under overload DDS drops a fifth or a quarter of the messages: the holes are then a large part of the window
+    and must not inflate the jitter spread that a hole must stand above (an interquartile spread, whose upper
+    quartile is then a hole itself, counted 71 of 3990)."""
+    for every in (5, 4):  # 200 Hz, every 5th (4th) message lost
+        k = np.arange(20000)
+        t = k[k % every != 0] / 200.0
+        st = InputStats()
+        for x in t:
+            st.on_imu(float(x), float(x))
+        lost = 20000 // every - 1  # (the first one is before the first stamp)
+        # measured: all but 4 and 5, the holes among the first INTERVAL_MIN samples (before the statistics exist)
+        assert lost - 8 <= st.n_lost <= lost
+
 def _engine(samples=400, mag=True, acc=9.81):
     eng = ImuEngine(make_filter())
     for k in range(samples):
