@@ -274,6 +274,22 @@ elif stage == 'shutdown_race':
         finally:
             self._Context__context = real
     Context.try_shutdown = try_shutdown
+elif stage == 'signal_thread':
+    # SIGINT while the node's loop is awake (its timer): it sees the flag at once, while rclpy's signal thread may
+    # not have run yet. That thread triggers the executors' signal guard conditions from a list it reads without a
+    # lock: one freed before it is stopped is a use after free (SIGSEGV, seen once in ~100 SIGINTs under load).
+    from rclpy.signals import SignalHandlerGuardCondition, SignalHandlerOptions, get_current_signal_handlers_options
+    real_destroy = SignalHandlerGuardCondition.destroy
+    def destroy(self):
+        if get_current_signal_handlers_options() != SignalHandlerOptions.NO:
+            print('signal guard condition freed while the signal thread runs', flush=True)
+        return real_destroy(self)
+    SignalHandlerGuardCondition.destroy = destroy
+    real_timer = CcfNode._on_timer
+    def on_timer(self):
+        kill()
+        return real_timer(self)
+    CcfNode._on_timer = on_timer
 print('stage', stage, flush=True)
 entry.main([], lifecycle=kind == 'lifecycle')
 print('exited', flush=True)
@@ -282,15 +298,17 @@ print('exited', flush=True)
 
 @pytest.mark.parametrize(('stage', 'kind'), [('after_init', 'lifecycle'), ('constructing', 'plain'),
                                              ('constructing', 'lifecycle'), ('in_del', 'plain'),
-                                             ('shutdown_race', 'plain')])
+                                             ('shutdown_race', 'plain'), ('signal_thread', 'plain')])
 def test_sigint_at_any_stage_exits_cleanly(stage, kind):
     """SIGINT right after rclpy.init, while the node is being made, handled inside a __del__ while rclpy's signal
     thread has not (yet) shut the context down, and shutting the context down while the node does: exit code 0, no
     traceback, within the wait bound. (in_del: the node used to run on, its KeyboardInterrupt printed as ignored and
-    lost; shutdown_race: it exited 1 with "rcl_shutdown already called".)"""
+    lost; shutdown_race: it exited 1 with "rcl_shutdown already called"; signal_thread: rclpy's signal thread was
+    still installed when the executor freed the guard condition it triggers, SIGSEGV when it ran late.)"""
     proc = subprocess.run([sys.executable, '-c', _SIGINT_AT, stage, kind], capture_output=True, text=True,
                           timeout=60)
     out = proc.stdout + proc.stderr
     assert proc.returncode == 0, out
     assert 'Traceback' not in out and 'Exception ignored' not in out, out
     assert 'exited' in proc.stdout, out
+    assert 'while the signal thread runs' not in out, out

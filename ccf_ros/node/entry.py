@@ -64,9 +64,11 @@ def main(args: list[str] | None = None, profile: str = 'ccf_node', lifecycle: bo
     ``lifecycle``, of ``ccf_lifecycle_node``). Exits 0 on SIGINT/SIGTERM at any stage after start-up began."""
     node: CcfNode | None = None
     executor: LeanExecutor | None = None
+    initialized = False
     with _StopSignal() as stop:
         try:
             rclpy.init(args=args)
+            initialized = True
             # (A signal by now has shut the context down: nothing made on it could live; rclpy's entities made in
             # the moment it does fail, as below, with "Exception ignored" noise from their __del__.)
             if stop.received is None:
@@ -91,11 +93,27 @@ def main(args: list[str] | None = None, profile: str = 'ccf_node', lifecycle: bo
                 print(f'{profile}: error: {err}', flush=True)
                 raise SystemExit(2) from None
         finally:
+            if initialized:
+                _stop_signal_thread()
             if executor is not None:
                 executor.shutdown()  # (releases the handles it holds)
             if node is not None:
                 node.destroy_node()
             _try_shutdown()
+
+
+def _stop_signal_thread() -> None:
+    """Uninstall rclpy's signal handlers, which joins its signal thread, before anything is destroyed (what
+    ``rclpy.shutdown()`` does; ``try_shutdown`` does not).
+
+    On a signal that thread triggers the executors' signal guard conditions from a list it reads without a lock, then
+    shuts the contexts down; the executor destroys its guard condition in ``shutdown``. When this loop woke first (its
+    timer, a message) and saw the flag, the thread, still waiting for a core under load, triggered a guard condition
+    already freed: SIGSEGV in ``rcl_trigger_guard_condition`` (exit -11, once in ~100 SIGINTs with three test suites
+    beside it). Joined first, it has either finished or, woken by the teardown, stops without triggering."""
+    from rclpy.signals import uninstall_signal_handlers
+
+    uninstall_signal_handlers()
 
 
 def _try_shutdown() -> None:
