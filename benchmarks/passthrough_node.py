@@ -13,6 +13,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import Imu, MagneticField
 
 from ccf_ros.node import OUTPUT_DEPTH, input_qos
+from ccf_ros.node.entry import stop_signal_thread
 from ccf_ros.settings import all_defaults
 
 
@@ -35,6 +36,7 @@ def main() -> None:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        stop_signal_thread()  # (as ccf_node: rclpy's signal thread must not trigger the spin's freed guard condition)
         node.destroy_node()
         rclpy.try_shutdown()
 

@@ -223,6 +223,9 @@ def cmd_play(args: argparse.Namespace) -> int:
         n = bar.n
     finally:
         bar.close()
+        from .node.entry import stop_signal_thread
+
+        stop_signal_thread()  # (before the shutdown: rclpy's signal thread would race it, see there)
         node.destroy_node()
         rclpy.try_shutdown()
     print(f'published {n} messages')

@@ -596,6 +596,41 @@ def test_ccf_play_waits_for_the_node_so_its_first_samples_arrive(context, sim_ba
             proc.kill()
         h.close()
 
+_PLAY_SIGINT = r'''
+import os, signal, sys
+import rclpy
+from rclpy.signals import SignalHandlerOptions, get_current_signal_handlers_options
+import ccf_ros.offline.play as play_module
+from ccf_ros.cli import main
+
+real_play = play_module.play
+def play(node, *args, progress=None, **kwargs):
+    def progress_then_sigint(n):
+        progress(n)
+        os.kill(os.getpid(), signal.SIGINT)  # once playing
+    return real_play(node, *args, progress=progress_then_sigint, **kwargs)
+play_module.play = play
+real_try_shutdown = rclpy.try_shutdown
+def try_shutdown(*args, **kwargs):
+    if get_current_signal_handlers_options() != SignalHandlerOptions.NO:
+        print('shut down while the signal thread runs', flush=True)
+    return real_try_shutdown(*args, **kwargs)
+rclpy.try_shutdown = try_shutdown
+sys.exit(main(['play', sys.argv[1], '--rate', '1']))
+'''
+
+
+def test_ccf_play_stopped_by_sigint_joins_rclpy_signal_thread_first(sim_bag, tmp_path):
+    """SIGINT while `ccf play` plays: exit 0, and rclpy's signal thread is joined before the node and context are
+    shut down (it shuts the context down itself, racing try_shutdown's check: "rcl_shutdown already called")."""
+    bag = copy_bag(sim_bag, tmp_path / 'sim5', stop_s=5.0)
+    proc = subprocess.run([sys.executable, '-c', _PLAY_SIGINT, str(bag)], capture_output=True, text=True, timeout=60)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 0, out
+    assert 'published' in proc.stdout and 'Traceback' not in out, out
+    assert 'while the signal thread runs' not in out, out
+
+
 def test_node_rejects_invalid_startup_parameters():
     r = subprocess.run(_node_command() + ['--ros-args', '-p', 'tau_acc_s:=0.0'], capture_output=True, text=True,
                        timeout=30)

@@ -94,7 +94,7 @@ def main(args: list[str] | None = None, profile: str = 'ccf_node', lifecycle: bo
                 raise SystemExit(2) from None
         finally:
             if initialized:
-                _stop_signal_thread()
+                stop_signal_thread()
             if executor is not None:
                 executor.shutdown()  # (releases the handles it holds)
             if node is not None:
@@ -102,7 +102,7 @@ def main(args: list[str] | None = None, profile: str = 'ccf_node', lifecycle: bo
             _try_shutdown()
 
 
-def _stop_signal_thread() -> None:
+def stop_signal_thread() -> None:
     """Uninstall rclpy's signal handlers, which joins its signal thread, before anything is destroyed (what
     ``rclpy.shutdown()`` does; ``try_shutdown`` does not).
 
@@ -111,9 +111,10 @@ def _stop_signal_thread() -> None:
     timer, a message) and saw the flag, the thread, still waiting for a core under load, triggered a guard condition
     already freed: SIGSEGV in ``rcl_trigger_guard_condition`` (exit -11, once in ~100 SIGINTs with three test suites
     beside it). Joined first, it has either finished or, woken by the teardown, stops without triggering."""
-    from rclpy.signals import uninstall_signal_handlers
+    from rclpy.signals import SignalHandlerOptions, get_current_signal_handlers_options, uninstall_signal_handlers
 
-    uninstall_signal_handlers()
+    if get_current_signal_handlers_options() != SignalHandlerOptions.NO:  # (again, it would set SIG_DFL a moment)
+        uninstall_signal_handlers()
 
 
 def _try_shutdown() -> None:
