@@ -29,9 +29,11 @@ see the same machine load, which on a shared machine changes by the second).
    old, pt2 / pt2, old, ccf, pt), and per round the paired ratios new / old of our code per message and of the
    node's CPU per message. With ``--split`` also where ccf_node's own time goes, step by step (wall time per IMU
    message of each step of ``_mag``/``_imu`` and of the once-a-second timer; its timers add to that run's share).
+   With ``--null`` also our code's share by difference, without a clock read in the node: ccf_node untimed and
+   ccf_node without our per-message code in every round, share 1 - without / untimed.
 
 Usage: python benchmarks/node_bench.py [--chunks 20] [--throughput-rounds 3] [--broad] [--node-cmd CMD]
-       [--cpu [--rates 200,400,1000] [--chunk-s 2] [--against PYTHON] [--split]]
+       [--cpu [--rates 200,400,1000] [--chunk-s 2] [--against PYTHON] [--split] [--null]]
 (sets ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; uses ROS_DOMAIN_ID if set, else a free domain of 215-232, locked for the run)
 """
 
@@ -72,7 +74,8 @@ BROAD = HERE.parents[1] / 'shared' / 'data' / 'broad' / '07_undisturbed_fast_rot
 DEFAULTS = all_defaults()
 QOS_IN = (str(DEFAULTS['qos_reliability']), int(DEFAULTS['qos_depth']))
 _STAMP = struct.Struct('<iI')  # header stamp right after the 4-byte CDR encapsulation header
-NAMESPACES = {'pass-through': 'pt', 'ccf_node': 'ccf', 'ccf_node old': 'ccf_old', 'pass-through 2': 'pt2'}
+NAMESPACES = {'pass-through': 'pt', 'ccf_node': 'ccf', 'ccf_node old': 'ccf_old', 'ccf plain': 'ccf_plain',
+              'ccf null': 'ccf_null', 'pass-through 2': 'pt2'}
 
 
 def recorder(conn, namespaces: list[str]) -> None:
@@ -273,6 +276,9 @@ def main() -> None:
     ap.add_argument('--against', metavar='PYTHON',
                     help='--cpu: also run the node of the ccf_ros that PYTHON imports (e.g. an older checkout\'s .venv/bin/python) '
                          'in the same rounds, and print the paired ratios new / old')
+    ap.add_argument('--null', action='store_true',
+                    help='--cpu: also our code\'s share by difference, 1 - (ccf_node without our per-message code) / '
+                         '(ccf_node untimed), per round: no clock read in either node')
     ap.add_argument('--split', action='store_true',
                     help='--cpu: also time each step of ccf_node\'s per-message code and its timer (adds to the share)')
     args = ap.parse_args()
@@ -281,7 +287,7 @@ def main() -> None:
         ap.error('--split and --against: run them separately (the split\'s timers would bias the paired ratios)')
     if args.cpu:
         cpu_per_message(args.chunks, tuple(float(r) for r in args.rates.split(',')), args.ccf_args.split(),
-                        args.chunk_s, args.against, args.split)
+                        args.chunk_s, args.against, args.split, args.null)
     else:
         throughput_and_latency(args)
 
@@ -364,7 +370,7 @@ def throughput_and_latency(args: argparse.Namespace) -> None:
 
 def cpu_per_message(chunks: int, rates: tuple[float, ...] = (200.0, 400.0, 1000.0),
                     ccf_args: list[str] | None = None, chunk_s: float = 2.0, against: str | None = None,
-                    split: bool = False) -> None:
+                    split: bool = False, null: bool = False) -> None:
     """CPU time per answered IMU message (with its magnetometer message) of ccf_node and of two identical
     pass-through nodes at each rate, and the share of ccf_node's own per-message code (a fresh set of nodes per rate).
 
@@ -377,29 +383,26 @@ def cpu_per_message(chunks: int, rates: tuple[float, ...] = (200.0, 400.0, 1000.
     ``against``: a Python whose ccf_ros runs as ``ccf_node old`` in the same rounds (after ccf_node, before
     pass-through 2; reversed in every other round); per round the paired ratios ccf_node / ccf_node old of our code
     per message and of the node's CPU per message. ``split``: ccf_node's steps timed (``node_share.py``'s
-    CCF_SPLIT_OUT), printed per rate."""
+    CCF_SPLIT_OUT), printed per rate. ``null``: two more nodes in every round, ccf_node untimed (``plain``) and
+    ccf_node without our per-message code (``null``: messages taken, IMU bytes published back), and per round our
+    code's share by difference, 1 - null / plain: the same quantity from the processes' CPU time alone, without the
+    timed node's clock reads (a CPU-time read is a system call, ~1 us on a VM, and about half of each counts as ours)."""
     import tempfile
 
-    print(f'ROS_DOMAIN_ID={os.environ["ROS_DOMAIN_ID"]}, input QoS {QOS_IN[0]} depth {QOS_IN[1]}; {chunks} rounds of '
-          f'{chunk_s:g} s chunks per node and rate, interleaved (pt, ccf, {"old, " if against else ""}pt2 / pt2, '
-          f'{"old, " if against else ""}ccf, pt); CPU from /proc/PID/task/*/schedstat; load average '
-          f'{os.getloadavg()[0]:.1f}', flush=True)
-    passthrough = [sys.executable, str(HERE / 'passthrough_node.py'), '--ros-args']
-    share_args = [str(HERE / 'node_share.py'), '--ros-args', '--log-level', 'error', *(ccf_args or [])]
-    cmds = {'pass-through': passthrough, 'ccf_node': [sys.executable, *share_args]}
-    if against:
-        cmds['ccf_node old'] = [against, *share_args]
-    cmds['pass-through 2'] = passthrough
+    cmds = _cpu_commands(ccf_args, against, null)
     nodes = [label for label in cmds if label.startswith('ccf_node')]
-    for label in nodes:
-        where = subprocess.run([cmds[label][0], '-c', 'import sys, ccf_ros; print(ccf_ros.__file__, "on Python", sys.version.split()[0])'], cwd='/',
-                               capture_output=True, text=True).stdout.strip()
-        print(f'  {label}: {cmds[label][0]}, ccf_ros from {where}', flush=True)
     labels = list(cmds)
+    short = ', '.join(NAMESPACES[label] for label in labels)
+    print(f'ROS_DOMAIN_ID={os.environ["ROS_DOMAIN_ID"]}, input QoS {QOS_IN[0]} depth {QOS_IN[1]}; {chunks} rounds of '
+          f'{chunk_s:g} s chunks per node and rate, interleaved ({short} / the reverse); CPU from '
+          f'/proc/PID/task/*/schedstat; load average {os.getloadavg()[0]:.1f}', flush=True)
     rows = []
     for rate in rates:
         share_files = {label: Path(tempfile.mkstemp(prefix='ccf_share_')[1]) for label in nodes}
         env = {label: {'CCF_SHARE_OUT': str(f)} for label, f in share_files.items()}
+        if null:
+            env['ccf plain'] = {'CCF_SHARE_MODE': 'plain'}
+            env['ccf null'] = {'CCF_SHARE_MODE': 'null'}
         split_file = Path(tempfile.mkstemp(prefix='ccf_split_')[1]) if split else None
         if split_file is not None:
             env['ccf_node']['CCF_SPLIT_OUT'] = str(split_file)
@@ -443,6 +446,9 @@ def cpu_per_message(chunks: int, rates: tuple[float, ...] = (200.0, 400.0, 1000.
               flush=True)
         if split_file is not None:
             _print_split(rate, split_file)
+        if null:
+            results['ccf plain'] = _by_difference(rate, np.array(cpu['ccf plain']), np.array(cpu['ccf null']),
+                                                  (a1 + a2) / 2)
         paired = None
         if against:
             paired = (results['ccf_node'][1] / results['ccf_node old'][1],
@@ -455,7 +461,8 @@ def cpu_per_message(chunks: int, rates: tuple[float, ...] = (200.0, 400.0, 1000.
           'A/A median [IQR] (1.00 +- 0.05) | our code us/msg | share per chunk: median [IQR] (<= 25 %)')
     for rate, per, aa, results, _ in rows:
         for label, (ratio, ours_chunk, share) in results.items():
-            print(f'{rate:7.0f} | {label:12s} | {per[label]:11.1f} | {per["pass-through"]:19.1f} | '
+            name = 'untimed, diff' if label == 'ccf plain' else label  # (its row: our code = untimed - null)
+            print(f'{rate:7.0f} | {name:12s} | {per[label]:11.1f} | {per["pass-through"]:19.1f} | '
                   f'{_median_iqr(ratio)} | {_median_iqr(aa)} | {np.median(ours_chunk):15.1f} | '
                   f'{_median_iqr(100 * share, "{:.1f}")} %')
     if against:
@@ -463,6 +470,41 @@ def cpu_per_message(chunks: int, rates: tuple[float, ...] = (200.0, 400.0, 1000.
               'median [IQR]')
         for rate, _, _, _, paired in rows:
             print(f'{rate:7.0f} | {_median_iqr(paired[0], "{:.3f}"):55s} | {_median_iqr(paired[1], "{:.3f}")}')
+
+
+def _cpu_commands(ccf_args: list[str] | None, against: str | None, null: bool) -> dict[str, list[str]]:
+    """The --cpu nodes' commands by label, in a round's order; prints where each ccf_node's ccf_ros comes from."""
+    passthrough = [sys.executable, str(HERE / 'passthrough_node.py'), '--ros-args']
+    share_args = [str(HERE / 'node_share.py'), '--ros-args', '--log-level', 'error', *(ccf_args or [])]
+    cmds = {'pass-through': passthrough, 'ccf_node': [sys.executable, *share_args]}
+    if against:
+        cmds['ccf_node old'] = [against, *share_args]
+    if null:
+        cmds['ccf plain'] = cmds['ccf null'] = [sys.executable, *share_args]
+    cmds['pass-through 2'] = passthrough
+    for label in cmds:
+        if label.startswith('ccf_node'):
+            where = subprocess.run([cmds[label][0], '-c', 'import sys, ccf_ros; print(ccf_ros.__file__, "on Python", '
+                                    'sys.version.split()[0])'], cwd='/', capture_output=True, text=True).stdout.strip()
+            print(f'  {label}: {cmds[label][0]}, ccf_ros from {where}', flush=True)
+    return cmds
+
+
+def _by_difference(rate: float, plain: np.ndarray, nothing: np.ndarray, pt: np.ndarray) -> tuple[np.ndarray, ...]:
+    """``--null``: our code's share 1 - nothing / plain per round (CPU us per message of ccf_node untimed and without
+    its per-message code; ``pt`` the pass-throughs' mean), printed with the ratio of the sums and its bootstrap 90 %
+    interval (the difference of two noisy totals: many rounds narrow it). Returns the table row's (ratio to the
+    pass-throughs, our code us/message, share) per round."""
+    diff = 1.0 - nothing / plain
+    rng = np.random.default_rng(0)
+    picks = rng.integers(0, len(plain), (4000, len(plain)))
+    boot = 1.0 - nothing[picks].sum(axis=1) / plain[picks].sum(axis=1)
+    print(f'  {rate:6.0f} Hz by difference per round: ccf_node untimed {" ".join(f"{x:.1f}" for x in plain)} '
+          f'us/message, without our code {" ".join(f"{x:.1f}" for x in nothing)}; our code\'s share % '
+          f'{" ".join(f"{100 * x:.1f}" for x in diff)}, {_spread(100 * diff)}; ratio of the sums '
+          f'{100 * (1.0 - nothing.sum() / plain.sum()):.1f} % (bootstrap 90 % interval '
+          f'{100 * np.percentile(boot, 5):.1f}-{100 * np.percentile(boot, 95):.1f})', flush=True)
+    return plain / pt, plain - nothing, diff
 
 
 def _print_split(rate: float, split_file: Path) -> None:

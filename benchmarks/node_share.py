@@ -6,7 +6,10 @@ named by ``CCF_SHARE_OUT`` at exit as ``ns_ours n_imu n_mag``, followed by one l
 ``time.monotonic()`` after the callback and the ns of our code so far (so that node_bench takes our code's time over
 exactly the messages of each chunk it measures the process's CPU time on). Everything else a message costs (DDS
 threads, rclpy's take and executor) is the rest of the process's CPU time. The timing itself adds ~4 clock reads per
-message.
+message, and counts about half of them as our code.
+With ``CCF_SHARE_MODE=plain`` the node runs untimed, with ``null`` without our per-message code (the IMU bytes are
+published back unchanged): ``node_bench.py --null`` takes our code's share as 1 - null / plain per round, from the
+processes' CPU time alone, without a clock read in the node.
 With ``CCF_PROFILE_OUT`` set, a cProfile of the whole node (executor included) is written to that file at exit.
 With ``CCF_SPLIT_OUT`` set (``node_bench.py --split``), where our code's time goes: the wall time (perf counter) of
 each step of the per-message path and of the timer, written to that file at exit as ``label ns calls`` lines. Its
@@ -51,18 +54,35 @@ def _timed_publish(pub) -> None:
     pub.publish = timed
 
 
-CcfNode._mag = _timed(CcfNode._mag, 0)
-CcfNode._imu = _timed(CcfNode._imu, 0, log=True)
-_open = CcfNode._open_ccf
+def _null_imu(self, data: bytes) -> None:
+    """CCF_SHARE_NULL: what rclpy does for a message without our code: the IMU bytes published back unchanged."""
+    self.pub_imu.publish(data)
 
 
-def _open_timed(self):
-    _open(self)
-    for pub in (self.pub_imu, self.pub_bias):
-        _timed_publish(pub)
+def _null_mag(self, data: bytes) -> None:
+    """CCF_SHARE_NULL: the magnetometer message is taken (by rclpy) and dropped."""
 
 
-CcfNode._open_ccf = _open_timed
+#: CCF_SHARE_MODE: 'timed' (default: our code timed, as above), 'plain' (ccf_node as installed, untimed: the
+#: timers' own clock reads, ~1 us each on a VM, are not in its CPU) or 'null' (ccf_node without our per-message code:
+#: the messages are taken, the IMU bytes published back). node_bench --null: our code = plain - null, per round.
+MODE = os.environ.get('CCF_SHARE_MODE', 'timed')
+if MODE == 'timed':
+    CcfNode._mag = _timed(CcfNode._mag, 0)
+    CcfNode._imu = _timed(CcfNode._imu, 0, log=True)
+    _open = CcfNode._open_ccf
+
+    def _open_timed(self):
+        _open(self)
+        for pub in (self.pub_imu, self.pub_bias):
+            _timed_publish(pub)
+
+    CcfNode._open_ccf = _open_timed
+elif MODE == 'null':
+    CcfNode._mag = _null_mag
+    CcfNode._imu = _null_imu
+elif MODE != 'plain':
+    raise SystemExit(f'CCF_SHARE_MODE must be timed, plain or null, not {MODE!r}')
 
 #: --split: label -> [ns, calls] of each step (wall time: a perf-counter read costs ~0.05 us, a CPU-clock read ~0.6)
 SPLIT: dict[str, list[int]] = {}
