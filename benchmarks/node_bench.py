@@ -282,6 +282,8 @@ def main() -> None:
     ap.add_argument('--split', action='store_true',
                     help='--cpu: also time each step of ccf_node\'s per-message code and its timer (adds to the share)')
     args = ap.parse_args()
+    if (args.null or args.split or args.against) and not args.cpu:
+        ap.error('--null, --split and --against go with --cpu')
     if args.split and args.against:
         # Only ccf_node carries the split's timers: they would count against it in every paired ratio.
         ap.error('--split and --against: run them separately (the split\'s timers would bias the paired ratios)')
@@ -385,8 +387,10 @@ def cpu_per_message(chunks: int, rates: tuple[float, ...] = (200.0, 400.0, 1000.
     per message and of the node's CPU per message. ``split``: ccf_node's steps timed (``node_share.py``'s
     CCF_SPLIT_OUT), printed per rate. ``null``: two more nodes in every round, ccf_node untimed (``plain``) and
     ccf_node without our per-message code (``null``: messages taken, IMU bytes published back), and per round our
-    code's share by difference, 1 - null / plain: the same quantity from the processes' CPU time alone, without the
-    timed node's clock reads (a CPU-time read is a system call, ~1 us on a VM, and about half of each counts as ours)."""
+    code's share by difference, 1 - null / plain: nearly the same quantity (it also counts what our code adds to the
+    once-a-second diagnostics) from the processes' CPU time alone, without the
+    timed node's clock reads (a CPU-time read is a system call, ~1 us on a VM, and about half of each counts as
+    ours)."""
     import tempfile
 
     cmds = _cpu_commands(ccf_args, against, null)
@@ -397,9 +401,11 @@ def cpu_per_message(chunks: int, rates: tuple[float, ...] = (200.0, 400.0, 1000.
           f'{chunk_s:g} s chunks per node and rate, interleaved ({short} / the reverse); CPU from '
           f'/proc/PID/task/*/schedstat; load average {os.getloadavg()[0]:.1f}', flush=True)
     rows = []
+    sums: dict[float, tuple[float, float, str]] = {}  # --null: per rate, the sums of untimed and null, the interval
     for rate in rates:
         share_files = {label: Path(tempfile.mkstemp(prefix='ccf_share_')[1]) for label in nodes}
-        env = {label: {'CCF_SHARE_OUT': str(f)} for label, f in share_files.items()}
+        # (CCF_SHARE_MODE set for every node: one left in the caller's environment must not change what is measured)
+        env = {label: {'CCF_SHARE_OUT': str(f), 'CCF_SHARE_MODE': 'timed'} for label, f in share_files.items()}
         if null:
             env['ccf plain'] = {'CCF_SHARE_MODE': 'plain'}
             env['ccf null'] = {'CCF_SHARE_MODE': 'null'}
@@ -447,8 +453,9 @@ def cpu_per_message(chunks: int, rates: tuple[float, ...] = (200.0, 400.0, 1000.
         if split_file is not None:
             _print_split(rate, split_file)
         if null:
-            results['ccf plain'] = _by_difference(rate, np.array(cpu['ccf plain']), np.array(cpu['ccf null']),
-                                                  (a1 + a2) / 2)
+            plain, nothing = np.array(cpu['ccf plain']), np.array(cpu['ccf null'])
+            results['ccf plain'], interval = _by_difference(rate, plain, nothing, (a1 + a2) / 2)
+            sums[rate] = (plain.sum(), nothing.sum(), interval)
         paired = None
         if against:
             paired = (results['ccf_node'][1] / results['ccf_node old'][1],
@@ -458,13 +465,16 @@ def cpu_per_message(chunks: int, rates: tuple[float, ...] = (200.0, 400.0, 1000.
                   f'{" ".join(f"{x:.2f}" for x in paired[1])}, {_spread(paired[1])}', flush=True)
         rows.append((rate, per, aa, results, paired))
     print('rate Hz | node         | node us/msg | pass-through us/msg | ratio: median [IQR] (target <= 0.8) | '
-          'A/A median [IQR] (1.00 +- 0.05) | our code us/msg | share per chunk: median [IQR] (<= 25 %)')
+          'A/A median [IQR] (1.00 +- 0.05) | our code us/msg | share per chunk: median [IQR]; by diff.: of the sums '
+          '(90 %) (<= 25 %)')
     for rate, per, aa, results, _ in rows:
         for label, (ratio, ours_chunk, share) in results.items():
-            name = 'untimed, diff' if label == 'ccf plain' else label  # (its row: our code = untimed - null)
+            if label == 'ccf plain':  # our code = untimed - null: the ratio of the sums and its interval
+                name, shown = 'by diff.', f'{100 * (1.0 - sums[rate][1] / sums[rate][0]):.1f} ({sums[rate][2]}) %'
+            else:
+                name, shown = label, f'{_median_iqr(100 * share, "{:.1f}")} %'
             print(f'{rate:7.0f} | {name:12s} | {per[label]:11.1f} | {per["pass-through"]:19.1f} | '
-                  f'{_median_iqr(ratio)} | {_median_iqr(aa)} | {np.median(ours_chunk):15.1f} | '
-                  f'{_median_iqr(100 * share, "{:.1f}")} %')
+                  f'{_median_iqr(ratio)} | {_median_iqr(aa)} | {np.median(ours_chunk):15.1f} | {shown}')
     if against:
         print('rate Hz | paired new / old per round: our code per message, median [IQR] | node CPU per message, '
               'median [IQR]')
@@ -490,21 +500,22 @@ def _cpu_commands(ccf_args: list[str] | None, against: str | None, null: bool) -
     return cmds
 
 
-def _by_difference(rate: float, plain: np.ndarray, nothing: np.ndarray, pt: np.ndarray) -> tuple[np.ndarray, ...]:
+def _by_difference(rate: float, plain: np.ndarray, nothing: np.ndarray,
+                   pt: np.ndarray) -> tuple[tuple[np.ndarray, ...], str]:
     """``--null``: our code's share 1 - nothing / plain per round (CPU us per message of ccf_node untimed and without
     its per-message code; ``pt`` the pass-throughs' mean), printed with the ratio of the sums and its bootstrap 90 %
     interval (the difference of two noisy totals: many rounds narrow it). Returns the table row's (ratio to the
-    pass-throughs, our code us/message, share) per round."""
+    pass-throughs, our code us/message, share) per round, and the interval as text."""
     diff = 1.0 - nothing / plain
     rng = np.random.default_rng(0)
-    picks = rng.integers(0, len(plain), (4000, len(plain)))
+    picks = rng.integers(0, len(plain), (20000, len(plain)))
     boot = 1.0 - nothing[picks].sum(axis=1) / plain[picks].sum(axis=1)
+    interval = f'{100 * np.percentile(boot, 5):.1f}-{100 * np.percentile(boot, 95):.1f}'
     print(f'  {rate:6.0f} Hz by difference per round: ccf_node untimed {" ".join(f"{x:.1f}" for x in plain)} '
           f'us/message, without our code {" ".join(f"{x:.1f}" for x in nothing)}; our code\'s share % '
           f'{" ".join(f"{100 * x:.1f}" for x in diff)}, {_spread(100 * diff)}; ratio of the sums '
-          f'{100 * (1.0 - nothing.sum() / plain.sum()):.1f} % (bootstrap 90 % interval '
-          f'{100 * np.percentile(boot, 5):.1f}-{100 * np.percentile(boot, 95):.1f})', flush=True)
-    return plain / pt, plain - nothing, diff
+          f'{100 * (1.0 - nothing.sum() / plain.sum()):.1f} % (bootstrap 90 % interval {interval})', flush=True)
+    return (plain / pt, plain - nothing, diff), interval
 
 
 def _print_split(rate: float, split_file: Path) -> None:

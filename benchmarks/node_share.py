@@ -1,4 +1,5 @@
-"""ccf_node with its own code timed: the node_bench ``--cpu`` mode runs this instead of the installed ccf_node.
+"""ccf_node with its own code timed (or untimed, or without it: ``CCF_SHARE_MODE``, below): the node_bench ``--cpu``
+mode runs this instead of the installed ccf_node.
 
 Thread CPU time (``time.thread_time_ns``) is summed over the node's per-message work (``CcfNode._mag``, ``_imu``: CDR
 reading, the engine, patching the answer) minus what rclpy's ``publish`` takes inside it, and written to the file
@@ -55,12 +56,12 @@ def _timed_publish(pub) -> None:
 
 
 def _null_imu(self, data: bytes) -> None:
-    """CCF_SHARE_NULL: what rclpy does for a message without our code: the IMU bytes published back unchanged."""
+    """CCF_SHARE_MODE=null: what rclpy does for a message without our code: the IMU bytes published back unchanged."""
     self.pub_imu.publish(data)
 
 
 def _null_mag(self, data: bytes) -> None:
-    """CCF_SHARE_NULL: the magnetometer message is taken (by rclpy) and dropped."""
+    """CCF_SHARE_MODE=null: the magnetometer message is taken (by rclpy) and dropped."""
 
 
 #: CCF_SHARE_MODE: 'timed' (default: our code timed, as above), 'plain' (ccf_node as installed, untimed: the
@@ -84,7 +85,8 @@ elif MODE == 'null':
 elif MODE != 'plain':
     raise SystemExit(f'CCF_SHARE_MODE must be timed, plain or null, not {MODE!r}')
 
-#: --split: label -> [ns, calls] of each step (wall time: a perf-counter read costs ~0.05 us, a CPU-clock read ~0.6)
+#: --split: label -> [ns, calls] of each step (wall time: a perf-counter read costs ~0.05-0.1 us, a CPU-clock read
+#: ~0.6-1.1, a system call)
 SPLIT: dict[str, list[int]] = {}
 
 
