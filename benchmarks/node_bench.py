@@ -401,7 +401,7 @@ def cpu_per_message(chunks: int, rates: tuple[float, ...] = (200.0, 400.0, 1000.
           f'{chunk_s:g} s chunks per node and rate, interleaved ({short} / the reverse); CPU from '
           f'/proc/PID/task/*/schedstat; load average {os.getloadavg()[0]:.1f}', flush=True)
     rows = []
-    sums: dict[float, tuple[float, float, str]] = {}  # --null: per rate, the sums of untimed and null, the interval
+    by_diff: dict[float, str] = {}  # --null: per rate, the share of the sums and its interval, as printed
     for rate in rates:
         share_files = {label: Path(tempfile.mkstemp(prefix='ccf_share_')[1]) for label in nodes}
         # (CCF_SHARE_MODE set for every node: one left in the caller's environment must not change what is measured)
@@ -453,9 +453,8 @@ def cpu_per_message(chunks: int, rates: tuple[float, ...] = (200.0, 400.0, 1000.
         if split_file is not None:
             _print_split(rate, split_file)
         if null:
-            plain, nothing = np.array(cpu['ccf plain']), np.array(cpu['ccf null'])
-            results['ccf plain'], interval = _by_difference(rate, plain, nothing, (a1 + a2) / 2)
-            sums[rate] = (plain.sum(), nothing.sum(), interval)
+            results['ccf plain'], by_diff[rate] = _by_difference(rate, np.array(cpu['ccf plain']),
+                                                                 np.array(cpu['ccf null']), (a1 + a2) / 2)
         paired = None
         if against:
             paired = (results['ccf_node'][1] / results['ccf_node old'][1],
@@ -470,7 +469,7 @@ def cpu_per_message(chunks: int, rates: tuple[float, ...] = (200.0, 400.0, 1000.
     for rate, per, aa, results, _ in rows:
         for label, (ratio, ours_chunk, share) in results.items():
             if label == 'ccf plain':  # our code = untimed - null: the ratio of the sums and its interval
-                name, shown = 'by diff.', f'{100 * (1.0 - sums[rate][1] / sums[rate][0]):.1f} ({sums[rate][2]}) %'
+                name, shown = 'by diff.', by_diff[rate]
             else:
                 name, shown = label, f'{_median_iqr(100 * share, "{:.1f}")} %'
             print(f'{rate:7.0f} | {name:12s} | {per[label]:11.1f} | {per["pass-through"]:19.1f} | '
@@ -505,17 +504,18 @@ def _by_difference(rate: float, plain: np.ndarray, nothing: np.ndarray,
     """``--null``: our code's share 1 - nothing / plain per round (CPU us per message of ccf_node untimed and without
     its per-message code; ``pt`` the pass-throughs' mean), printed with the ratio of the sums and its bootstrap 90 %
     interval (the difference of two noisy totals: many rounds narrow it). Returns the table row's (ratio to the
-    pass-throughs, our code us/message, share) per round, and the interval as text."""
+    pass-throughs, our code us/message, share) per round, and ``share of the sums (interval) %`` as text."""
     diff = 1.0 - nothing / plain
     rng = np.random.default_rng(0)
     picks = rng.integers(0, len(plain), (20000, len(plain)))
     boot = 1.0 - nothing[picks].sum(axis=1) / plain[picks].sum(axis=1)
-    interval = f'{100 * np.percentile(boot, 5):.1f}-{100 * np.percentile(boot, 95):.1f}'
+    shown = (f'{100 * (1.0 - nothing.sum() / plain.sum()):.1f} ({100 * np.percentile(boot, 5):.1f}-'
+             f'{100 * np.percentile(boot, 95):.1f}) %')
     print(f'  {rate:6.0f} Hz by difference per round: ccf_node untimed {" ".join(f"{x:.1f}" for x in plain)} '
           f'us/message, without our code {" ".join(f"{x:.1f}" for x in nothing)}; our code\'s share % '
-          f'{" ".join(f"{100 * x:.1f}" for x in diff)}, {_spread(100 * diff)}; ratio of the sums '
-          f'{100 * (1.0 - nothing.sum() / plain.sum()):.1f} % (bootstrap 90 % interval {interval})', flush=True)
-    return (plain / pt, plain - nothing, diff), interval
+          f'{" ".join(f"{100 * x:.1f}" for x in diff)}, {_spread(100 * diff)}; ratio of the sums (bootstrap 90 % '
+          f'interval) {shown}', flush=True)
+    return (plain / pt, plain - nothing, diff), shown
 
 
 def _print_split(rate: float, split_file: Path) -> None:

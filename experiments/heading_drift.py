@@ -6,9 +6,9 @@ followed sample by sample and its changes summed by how fast the reference turns
 5 °/s, slow up to 60 °/s, fast above). Beside them, the gyro error along world up (gyro minus the motion capture's
 body rate, turned into the world by the reference: what drifts a heading) against the filter's bias estimate along
 its own world up, averaged per class, and the integral of their difference over the same intervals (it matches the
-heading change to within ~0.5°: the check that the drift is the gyro's). A class present for less than 1 s is NaN. Last, ``k`` of the fit ``e = b + k w`` of the world-up error ``e``
-against the world-up rate ``w`` while moving: a rate-proportional error (scale factor, misalignment) that no bias
-estimate can follow.
+heading change to within ~0.5°: the check that the drift is the gyro's). A class present for less than 1 s is NaN.
+Last, ``k`` of the fit ``e = b + k w`` of the world-up error ``e`` against the world-up rate ``w`` while moving: a
+rate-proportional error (scale factor, misalignment) that no bias estimate can follow.
 
 Usage: python experiments/heading_drift.py [--shared ../shared/data/broad] [--trials 07,30,33] [NAME=VALUE ...]
 """
@@ -54,11 +54,11 @@ def run_trial(args: tuple[Path, dict[str, str]]) -> tuple[str, dict[str, Any]]:
     q = align(imu.t_s[r.answered], r.quat[r.answered], t_ref, q_ref)
     score = fitted_total_rmse_deg(q, q_ref, mask)
     # The heading error after the fitted offset, at the reference's samples (in BROAD, also the IMU's stamps).
-    sel = mask & np.all(np.isfinite(q), axis=1) & np.all(np.isfinite(q_ref), axis=1)
+    both = np.all(np.isfinite(q), axis=1) & np.all(np.isfinite(q_ref), axis=1)
+    sel = mask & both
     psi = signed_heading(fit_heading_offset(q[sel], q_ref[sel])[:1], q_ref[sel][:1])[0]
-    ok = np.all(np.isfinite(q), axis=1) & np.all(np.isfinite(q_ref), axis=1)
     h = np.full(len(t_ref), np.nan)
-    h[ok] = (signed_heading(q[ok], q_ref[ok]) - psi + 180.0) % 360.0 - 180.0
+    h[both] = (signed_heading(q[both], q_ref[both]) - psi + 180.0) % 360.0 - 180.0
     # The gyro's error and the reference rate at the IMU samples, and the reference orientation there.
     d, w = gyro_minus_reference(imu.t_s, imu.gyr, t_ref, q_ref)
     i_ref = np.clip(np.searchsorted(t_ref, imu.t_s - 0.25 / RATE_HZ), 0, len(t_ref) - 1)
@@ -75,10 +75,10 @@ def run_trial(args: tuple[Path, dict[str, str]]) -> tuple[str, dict[str, Any]]:
     dh = (np.diff(h_imu) + 180.0) % 360.0 - 180.0
     # One set of intervals per class for the heading change and the integral, each interval's own length.
     dt = np.diff(imu.t_s)
-    ok = np.isfinite(dh) & np.isfinite(rate[1:]) & np.isfinite(e_up[1:]) & np.isfinite(b_up[1:])
+    usable = np.isfinite(dh) & np.isfinite(rate[1:]) & np.isfinite(e_up[1:]) & np.isfinite(b_up[1:])
     out: dict[str, Any] = {'score': score}
     for c, name in enumerate(CLASSES):
-        m = ok & (cls[1:] == c)
+        m = usable & (cls[1:] == c)
         seconds = float(dt[m].sum())
         if seconds < 1.0:  # (a class hardly present: its means say nothing)
             out[name] = (np.nan, seconds, np.nan, np.nan, np.nan)
