@@ -631,6 +631,44 @@ def test_ccf_play_stopped_by_sigint_joins_rclpy_signal_thread_first(sim_bag, tmp
     assert 'while the signal thread runs' not in out, out
 
 
+def test_play_ends_cleanly_when_its_context_is_shut_down_between_the_stop_check_and_a_publish(context, ros_domain,
+                                                                                            sim_bag, tmp_path):
+    """The race behind a suite run's failure under load: SIGINT's signal thread shut the context down after
+    ``should_stop`` said go on, and the next publish raised RCLError ('publisher's context is invalid'), exit 1.
+    Made deterministic: the context is shut down right after the 3rd message, ``should_stop`` never says stop.
+    An RCL error while the context is still valid is a bug and propagates."""
+    from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+
+    from ccf_ros.offline.play import load_messages, play
+
+    types, messages = load_messages(copy_bag(sim_bag, tmp_path / 'sim1', stop_s=1.0))
+    published = []
+
+    def shut_down_after_three(k):
+        published.append(k)
+        if len(published) == 3:
+            rclpy.shutdown(context=context)  # what the signal thread does on SIGINT
+
+    node = rclpy.create_node('play_shut_down', context=context)
+    try:
+        assert play(node, types, messages, rate=50.0, progress=shut_down_after_three) == 3
+    finally:
+        node.destroy_node()
+
+    def rcl_failure(_k):
+        raise _rclpy.RCLError('injected: an RCL failure while the context is valid')
+
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=ros_domain)
+    node = rclpy.create_node('play_rcl_failure', context=ctx)
+    try:
+        with pytest.raises(_rclpy.RCLError, match='injected'):
+            play(node, types, messages, rate=50.0, progress=rcl_failure)
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+
+
 def test_node_rejects_invalid_startup_parameters():
     r = subprocess.run(_node_command() + ['--ros-args', '-p', 'tau_acc_s:=0.0'], capture_output=True, text=True,
                        timeout=30)

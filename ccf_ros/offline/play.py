@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import importlib
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -43,6 +43,20 @@ def load_messages(bag: str | Path, topics: Sequence[str] | None = None) -> tuple
     return types, msgs
 
 
+def _wait_for_subscribers(pubs: Iterable[Any], wait_s: float, should_stop: Callable[[], bool]) -> bool:
+    """Wait up to ``wait_s`` (s) until each publisher is matched; False if ``should_stop`` said stop meanwhile."""
+    deadline = time.monotonic() + wait_s
+    while time.monotonic() < deadline and any(pub.get_subscription_count() == 0 for pub in pubs):
+        if should_stop():
+            return False
+        time.sleep(0.01)
+    if wait_s > 0.0:
+        # The writers see the match first; give the readers' side a moment to match back before the first sample
+        # (a lost first magnetometer sample would change the initial heading).
+        time.sleep(min(0.5, wait_s))
+    return True
+
+
 def play(
     node: Node,
     types: dict[str, str],
@@ -61,8 +75,11 @@ def play(
     Returns the number of messages published. With ``clock`` it also publishes ``/clock`` (for use_sim_time).
     With ``wait_matched_s`` > 0 it first waits (up to that long, s) until every topic's publisher is matched with
     a subscriber: DDS drops what a publisher sends before it is matched, and each topic matches on its own.
+    A context shut down meanwhile (SIGINT: rclpy's signal thread shuts it down between ``should_stop``'s check and
+    a publish) ends the play as ``should_stop`` does; an RCL error while the context is valid propagates.
     """
     from rclpy.duration import Duration
+    from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
     if not rate > 0:
@@ -75,38 +92,34 @@ def play(
 
         clock_pub = node.create_publisher(Clock, '/clock', 10)
         clock_msg = Clock()
-    deadline = time.monotonic() + wait_matched_s
-    while time.monotonic() < deadline and any(pub.get_subscription_count() == 0 for pub in pubs.values()):
-        if should_stop():
-            return 0
-        time.sleep(0.01)
-    if wait_matched_s > 0.0:
-        # The writers see the match first; give the readers' side a moment to match back before the first sample
-        # (a lost first magnetometer sample would change the initial heading).
-        time.sleep(min(0.5, wait_matched_s))
     n = 0
-    if not messages:
-        return 0
-    while True:
-        t0_bag = messages[0][0]
-        t0_wall = time.monotonic()
-        for t, topic, data in messages:
-            due = t0_wall + (t - t0_bag) * 1e-9 / rate
-            delay = due - time.monotonic()
-            if delay > 0:
-                time.sleep(delay)
-            if should_stop():
+    try:
+        if not _wait_for_subscribers(pubs.values(), wait_matched_s, should_stop) or not messages:
+            return 0
+        while True:
+            t0_bag = messages[0][0]
+            t0_wall = time.monotonic()
+            for t, topic, data in messages:
+                due = t0_wall + (t - t0_bag) * 1e-9 / rate
+                delay = due - time.monotonic()
+                if delay > 0:
+                    time.sleep(delay)
+                if should_stop():
+                    return n
+                if clock_pub is not None:
+                    clock_msg.clock.sec, clock_msg.clock.nanosec = divmod(t, 1_000_000_000)
+                    clock_pub.publish(clock_msg)
+                pubs[topic].publish(data)
+                n += 1
+                if progress is not None:
+                    progress(1)
+            if not loop:
+                # Reliable writers still hold what the readers have not acknowledged: exiting now would drop the last
+                # messages (seen: the last IMU and magnetometer sample of a bag).
+                for pub in pubs.values():
+                    pub.wait_for_all_acked(Duration(seconds=2))
                 return n
-            if clock_pub is not None:
-                clock_msg.clock.sec, clock_msg.clock.nanosec = divmod(t, 1_000_000_000)
-                clock_pub.publish(clock_msg)
-            pubs[topic].publish(data)
-            n += 1
-            if progress is not None:
-                progress(1)
-        if not loop:
-            # Reliable writers still hold what the readers have not acknowledged: exiting now would drop the last
-            # messages (seen: the last IMU and magnetometer sample of a bag).
-            for pub in pubs.values():
-                pub.wait_for_all_acked(Duration(seconds=2))
-            return n
+    except _rclpy.RCLError:
+        if node.context.ok():
+            raise
+        return n  # (what was published before the shutdown; the one that raised was not)
