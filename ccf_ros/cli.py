@@ -204,29 +204,39 @@ def cmd_play(args: argparse.Namespace) -> int:
         raise ParameterError(f'--wait-for-subscribers must be a finite number >= 0, got {args.wait_for_subscribers!r}')
     _need_rclpy('ccf play')
     import rclpy
+    from rclpy.exceptions import NotInitializedException
     from rclpy.executors import ExternalShutdownException
+    from rclpy.impl.implementation_singleton import rclpy_implementation
     from tqdm import tqdm
 
     from .offline.play import load_messages, play
+
+    RCLError = rclpy_implementation.RCLError
 
     topics = [t for t in (args.topics or '').split(',') if t] or None
     types, messages = load_messages(args.bag, topics)
     print(f'playing {len(messages)} messages on {len(types)} topics at {args.rate:g}x' + (' (loop)' if args.loop else '')
           + (f', after up to {args.wait_for_subscribers:g} s for a subscriber on each' if args.wait_for_subscribers else ''))
     rclpy.init()
-    node = rclpy.create_node('ccf_play')
+    node = None
     bar = tqdm(total=None if args.loop else len(messages), unit='msg', disable=None, mininterval=0.5)
     try:
+        node = rclpy.create_node('ccf_play')
         n = play(node, types, messages, rate=args.rate, loop=args.loop, clock=args.clock,
                  should_stop=lambda: not rclpy.ok(), progress=bar.update, wait_matched_s=args.wait_for_subscribers)
     except (KeyboardInterrupt, ExternalShutdownException):
         n = bar.n
+    except (RCLError, NotInitializedException):
+        if rclpy.ok():
+            raise
+        n = bar.n  # SIGINT while the node was made: rclpy's signal thread shut the context down under it
     finally:
         bar.close()
         from .node.entry import stop_signal_thread
 
         stop_signal_thread()  # (before the shutdown: rclpy's signal thread would race it, see there)
-        node.destroy_node()
+        if node is not None:
+            node.destroy_node()
         rclpy.try_shutdown()
     print(f'published {n} messages')
     return 0

@@ -669,6 +669,41 @@ def test_play_ends_cleanly_when_its_context_is_shut_down_between_the_stop_check_
         rclpy.try_shutdown(context=ctx)
 
 
+_PLAY_SHUT_DOWN_AT = '''
+import sys
+import rclpy
+import rclpy.node
+from ccf_ros.cli import main
+
+def shut_down_first(real, when=lambda *args: True):
+    def call(*args, **kwargs):
+        if when(*args):
+            rclpy.get_default_context().shutdown()  # what rclpy's signal thread does on SIGINT, from its own thread
+        return real(*args, **kwargs)
+    return call
+
+if sys.argv[2] == 'create_node':
+    rclpy.create_node = shut_down_first(rclpy.create_node)
+else:  # the bag's publishers (not the node's own /parameter_events one)
+    rclpy.node.Node.create_publisher = shut_down_first(rclpy.node.Node.create_publisher,
+                                                       lambda node, msg_type, topic, *rest: topic != '/parameter_events')
+sys.exit(main(['play', sys.argv[1]]))
+'''
+
+
+@pytest.mark.parametrize('stage', ['create_node', 'create_publisher'])
+def test_ccf_play_whose_context_is_shut_down_while_it_starts_exits_cleanly(sim_bag, tmp_path, stage):
+    """SIGINT between rclpy.init and the first publish: rclpy's signal thread (a thread of its own: the main thread's
+    KeyboardInterrupt may come later) shuts the context down under the node's or a publisher's creation, which raise
+    (NotInitializedException, RCLError). Exit 0, nothing published, no traceback."""
+    bag = copy_bag(sim_bag, tmp_path / 'sim1', stop_s=1.0)
+    proc = subprocess.run([sys.executable, '-c', _PLAY_SHUT_DOWN_AT, str(bag), stage], capture_output=True, text=True,
+                          timeout=60)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 0, out
+    assert 'published 0 messages' in proc.stdout and 'Traceback' not in out, out
+
+
 def test_node_rejects_invalid_startup_parameters():
     r = subprocess.run(_node_command() + ['--ros-args', '-p', 'tau_acc_s:=0.0'], capture_output=True, text=True,
                        timeout=30)

@@ -75,8 +75,9 @@ def play(
     Returns the number of messages published. With ``clock`` it also publishes ``/clock`` (for use_sim_time).
     With ``wait_matched_s`` > 0 it first waits (up to that long, s) until every topic's publisher is matched with
     a subscriber: DDS drops what a publisher sends before it is matched, and each topic matches on its own.
-    A context shut down meanwhile (SIGINT: rclpy's signal thread shuts it down between ``should_stop``'s check and
-    a publish) ends the play as ``should_stop`` does; an RCL error while the context is valid propagates.
+    A context shut down meanwhile (SIGINT: rclpy's signal thread shuts it down at any moment, e.g. between
+    ``should_stop``'s check and a publish) ends the play as ``should_stop`` does; an RCL error while the context is
+    valid propagates.
     """
     from rclpy.duration import Duration
     from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
@@ -85,15 +86,16 @@ def play(
     if not rate > 0:
         raise ParameterError(f'--rate must be > 0, got {rate!r}')
     qos = QoSProfile(depth=qos_depth, reliability=ReliabilityPolicy.RELIABLE)
-    pubs = {topic: node.create_publisher(msg_class(t), topic, qos) for topic, t in types.items()}
-    clock_pub = None
-    if clock:
-        from rosgraph_msgs.msg import Clock
-
-        clock_pub = node.create_publisher(Clock, '/clock', 10)
-        clock_msg = Clock()
+    classes = {topic: msg_class(t) for topic, t in types.items()}
     n = 0
     try:
+        pubs = {topic: node.create_publisher(cls, topic, qos) for topic, cls in classes.items()}
+        clock_pub = None
+        if clock:
+            from rosgraph_msgs.msg import Clock
+
+            clock_pub = node.create_publisher(Clock, '/clock', 10)
+            clock_msg = Clock()
         if not _wait_for_subscribers(pubs.values(), wait_matched_s, should_stop) or not messages:
             return 0
         while True:
