@@ -704,6 +704,23 @@ def test_ccf_play_whose_context_is_shut_down_while_it_starts_exits_cleanly(sim_b
     assert 'published 0 messages' in proc.stdout and 'Traceback' not in out, out
 
 
+def test_the_recorders_spin_thread_ends_quietly_when_sigint_shuts_its_context_down(monkeypatch):
+    """``ccf demo``'s recorder spins in a thread of its own; rclpy's signal thread shuts its context down on SIGINT
+    (the main thread then gets KeyboardInterrupt and ends the run): the spin thread ends without an exception
+    (it printed 'Exception in thread ... ExternalShutdownException' under the user's Ctrl-C)."""
+    import threading
+
+    from ccf_ros.offline.live import Recorder
+
+    errors = []
+    monkeypatch.setattr(threading, 'excepthook', lambda args: errors.append(args.exc_value))
+    with Recorder('recorder_shut_down', 'ccf_node') as rec:
+        rec.ctx.shutdown()  # what rclpy's signal thread does on SIGINT
+        rec._thread.join(timeout=20)
+        assert not rec._thread.is_alive()
+    assert errors == []
+
+
 def test_node_rejects_invalid_startup_parameters():
     r = subprocess.run(_node_command() + ['--ros-args', '-p', 'tau_acc_s:=0.0'], capture_output=True, text=True,
                        timeout=30)

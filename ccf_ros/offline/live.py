@@ -64,7 +64,10 @@ class Recorder:
     def __enter__(self) -> Recorder:
         import rclpy
         from diagnostic_msgs.msg import DiagnosticArray
-        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+        from rclpy.impl.implementation_singleton import rclpy_implementation
+
+        RCLError = rclpy_implementation.RCLError
         from rclpy.qos import QoSProfile, ReliabilityPolicy
         from sensor_msgs.msg import Imu
 
@@ -96,8 +99,14 @@ class Recorder:
         self._spinning.set()
 
         def spin() -> None:
-            while self._spinning.is_set():
-                self._ex.spin_once(timeout_sec=0.05)
+            try:
+                while self._spinning.is_set():
+                    self._ex.spin_once(timeout_sec=0.05)
+            except ExternalShutdownException:
+                pass  # SIGINT: rclpy's signal thread shut the context down; the main thread ends the run
+            except RCLError:
+                if self.ctx.ok():
+                    raise
 
         self._thread = threading.Thread(target=spin, daemon=True)
         self._thread.start()
