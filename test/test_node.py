@@ -888,6 +888,55 @@ def test_late_magnetometer_samples_are_placed_where_the_node_reports_them(faulty
         _engine_over_bag(path, [(-1.0, n)])
 
 
+def test_a_magnetometer_sample_overtaken_across_a_stamp_gap_is_reported_late(context, faulty_sim):
+    """The node's report of late magnetometer samples is what lets a test rebuild its order (and a user see it).
+    A suite run under load failed the live faults test: answers differed from the reference, with the reported late
+    samples all placed. Reproduced here without DDS, the node's message handlers called in bag order but for one
+    delivery: the last magnetometer sample before the 30 s stamp gap comes after the first IMU sample past it (its
+    own IMU sample released by the hold timeout first). It is 30 s behind that IMU stamp, which the node took for a
+    clock jump back (a new timeline) and did not report; it must be reported, and the answers then equal the
+    reference exactly."""
+    from rclpy.serialization import deserialize_message
+
+    from ccf_ros.core.quaternion import from_xyzw
+    from ccf_ros.messages.cdr import read_imu, read_mag
+    from ccf_ros.offline.play import load_messages
+
+    path, _ = faulty_sim
+    _, messages = load_messages(path, [IMU, MAG])
+    imu_t = [read_imu(raw)[0] for _, topic, raw in messages if topic == IMU]
+    first_after_gap = next(k for k in range(1, len(imu_t) - 1) if imu_t[k + 1] - imu_t[k - 1] > 20.0 < imu_t[k] - imu_t[k - 1])  # (not the lone stamp ahead)
+    mag_before = max((k for k, (_, topic, raw) in enumerate(messages)
+                      if topic == MAG and read_mag(raw)[0] < imu_t[first_after_gap] - 20.0))
+    node = reliable_node(context)
+    answers = []
+    node.pub_imu.publish = answers.append
+    node.sync.hold_s = 1e-9  # a held sample's timeout has passed at the next look (as a loaded node's timer finds)
+    n_imu, withheld = 0, None
+    for k, (_, topic, raw) in enumerate(messages):
+        if k == mag_before:
+            withheld = raw
+            continue
+        if topic == MAG:
+            node._mag(raw)
+            continue
+        node._imu(raw)
+        node._answer_all(node.sync.expire(time.monotonic()))
+        n_imu += 1
+        if n_imu == first_after_gap + 1:
+            node._mag(withheld)
+            late = [(read_mag(withheld)[0], node.engine.n_in)]
+    node._answer_all(node.sync.flush(time.monotonic()))
+    assert node.stats.n_mag_late == 1
+    t_ref, q_ref = _engine_over_bag(path, late)
+    msgs = [deserialize_message(bytes(a), Imu) for a in answers]
+    q = np.array([from_xyzw(m.orientation.x, m.orientation.y, m.orientation.z, m.orientation.w) for m in msgs])
+    np.testing.assert_array_equal([read_imu(bytes(a))[0] for a in answers], t_ref)
+    np.testing.assert_array_equal(q, q_ref)
+    assert not np.array_equal(q, _engine_over_bag(path)[1])  # (the delivery changed the answers: a test of a report)
+    node.destroy_node()
+
+
 def test_live_node_survives_faults_and_answers_every_sample(faulty_sim, tmp_path):
     """NaN/Inf, zero vectors, duplicated/backward stamps, a 30 s gap and 10 s of silent magnetometer, over DDS:
     every sample answered (those that cannot advance the filter with the current orientation), as replay does."""

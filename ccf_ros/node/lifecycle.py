@@ -57,7 +57,7 @@ class CcfLifecycleNode(LifecycleNodeMixin, CcfNode):
         self._drop_pending_pose('cleanup drops the filter state')
         self.engine.reset()
         self.sync.reset()
-        self._t_imu_done = -math.inf
+        self._t_imu_done = self._t_imu_before_jump = -math.inf
         self.stats = InputStats()
         self._configured = False
         return TransitionCallbackReturn.SUCCESS

@@ -269,6 +269,9 @@ class CcfNode(Node):
         self._last_bias_t = -math.inf
         #: stamp of the IMU sample processed last (+ the pairer's tolerance): a magnetometer sample up to it is late
         self._t_imu_done = -math.inf
+        #: the same before the last jump of the IMU stamps more than JUMP_BACK_RESET_S ahead (-inf if none since the
+        #: last jump back): a magnetometer sample up to it is late too, though far behind the IMU stamps now
+        self._t_imu_before_jump = -math.inf
         #: when each kind of throttled warning was last logged (time.monotonic(), s)
         self._last_warn: dict[str, float] = {}
         if not self._callbacks_added:
@@ -637,8 +640,11 @@ class CcfNode(Node):
         """A magnetometer sample comes after the IMU sample with its stamp (or a later one) was processed: replay
         would have paired it with that one (it timed out, or the sample overtook it over DDS). Counted; at debug
         level logged with where it landed, so that a test can rebuild the node's order exactly."""
-        if t < self._t_imu_done - JUMP_BACK_RESET_S:
-            return  # the clock jumped back (bag loop): a new timeline, not a late sample
+        before = self._t_imu_before_jump
+        if t < self._t_imu_done - JUMP_BACK_RESET_S and not before - JUMP_BACK_RESET_S <= t <= before:
+            # The clock jumped back (bag loop): a new timeline, not a late sample. Unless the IMU stamps jumped ahead
+            # (a gap) after the IMU sample of this stamp was processed: overtaken across the gap, it is late.
+            return
         self.stats.n_mag_late += 1
         self.get_logger().debug(f'late magnetometer sample t={t!r} after IMU sample {self.engine.n_in}')
 
@@ -666,8 +672,14 @@ class CcfNode(Node):
             engine.set_sensor_frame(path.frame_id(src))
         out = engine.on_imu(t, gyr, acc)
         done = t + MAG_TOLERANCE_S
-        if done > self._t_imu_done or done < self._t_imu_done - JUMP_BACK_RESET_S:
+        last = self._t_imu_done
+        if done > last:
+            if done > last + JUMP_BACK_RESET_S:
+                self._t_imu_before_jump = last  # a stamp gap (or a lone stamp ahead)
             self._t_imu_done = done
+        elif done < last - JUMP_BACK_RESET_S:
+            self._t_imu_done = done
+            self._t_imu_before_jump = -math.inf
         if out is None:
             self._warn_unadvanced(t, out)
             return
@@ -768,8 +780,14 @@ class CcfNode(Node):
         # The latest stamp processed, not the last: a backward stamp in between must not hide a late sample; a clock
         # jump back (bag loop) starts a new timeline.
         done = t + MAG_TOLERANCE_S
-        if done > self._t_imu_done or done < self._t_imu_done - JUMP_BACK_RESET_S:
+        last = self._t_imu_done
+        if done > last:
+            if done > last + JUMP_BACK_RESET_S:
+                self._t_imu_before_jump = last  # a stamp gap (or a lone stamp ahead)
             self._t_imu_done = done
+        elif done < last - JUMP_BACK_RESET_S:
+            self._t_imu_done = done
+            self._t_imu_before_jump = -math.inf
         if out is None:
             self._warn_unadvanced(t, out)
             return
@@ -871,7 +889,7 @@ class CcfNode(Node):
         self._answer_all(self.sync.flush(time.monotonic()))
         self.engine.reset()
         self.sync.reset()
-        self._t_imu_done = -math.inf
+        self._t_imu_done = self._t_imu_before_jump = -math.inf
         resp.success = True
         resp.message = 'filter reset; re-initialising from the next sample with a valid accelerometer'
         self.get_logger().info(resp.message)
