@@ -779,6 +779,13 @@ class ImuEngine:
         return self.n_out
 
     @property
+    def latest_stamp_s(self) -> float:
+        """Latest IMU stamp processed on the current timeline, s (-inf if none): stamps far behind it (until the
+        restart) and a lone stamp far ahead of it do not count. The pairer has handed out every magnetometer sample
+        up to it (+ its tolerance)."""
+        return self._t_last
+
+    @property
     def n_no_acc(self) -> int:
         """Samples propagated gyro-only (unusable accelerometer)."""
         return self._no_acc_before + self.filter.n_no_acc

@@ -888,14 +888,28 @@ def test_late_magnetometer_samples_are_placed_where_the_node_reports_them(faulty
         _engine_over_bag(path, [(-1.0, n)])
 
 
-def test_a_magnetometer_sample_overtaken_across_a_stamp_gap_is_reported_late(context, faulty_sim):
+def _overtaken(case, imu_t):
+    """(IMU index from whose magnetometer sample on that topic stalls, IMU index after which its backlog comes) of a
+    delivery ``case``."""
+    if case == 'across a gap':  # the last sample before the 30 s gap, after the second IMU sample past it
+        k = next(k for k in range(1, len(imu_t) - 1) if imu_t[k + 1] - imu_t[k - 1] > 20.0 < imu_t[k] - imu_t[k - 1])
+        return k - 1, k + 1  # (k - 1: the lone stamp ahead, undone by the next one, is not a gap)
+    if case == 'after a stray stamp':  # after a lone stamp 30.5 s behind (the backward copy after the gap)
+        k = next(k for k in range(1, len(imu_t) - 1) if imu_t[k] < min(imu_t[k - 1], imu_t[k + 1]) - 20.0)
+        return k - 2, k
+    return 3000, 3400  # 'over a second late': 400 samples (1.4 s) late, without a gap
+
+
+@pytest.mark.parametrize('case', ['across a gap', 'after a stray stamp', 'over a second late'])
+def test_a_magnetometer_sample_overtaken_is_reported_late(context, faulty_sim, case):
     """The node's report of late magnetometer samples is what lets a test rebuild its order (and a user see it).
     A suite run under load failed the live faults test: answers differed from the reference, with the reported late
     samples all placed. Reproduced here without DDS, the node's message handlers called in bag order but for one
-    delivery: the last magnetometer sample before the 30 s stamp gap comes after the first IMU sample past it (its
-    own IMU sample released by the hold timeout first). It is 30 s behind that IMU stamp, which the node took for a
-    clock jump back (a new timeline) and did not report; it must be reported, and the answers then equal the
-    reference exactly."""
+    delivery: the magnetometer topic stalls (DDS keeps its order) and its backlog comes after later IMU samples
+    (released by the hold timeout), far behind their stamps: across the 30 s stamp gap, after a lone stamp 30.5 s
+    behind, or 1.4 s late. The node took such samples for a clock jump back (a new timeline), or a stray stamp for
+    the IMU's latest, and did not report them; every one must be reported, and the answers then equal the reference
+    exactly."""
     from rclpy.serialization import deserialize_message
 
     from ccf_ros.core.quaternion import from_xyzw
@@ -905,35 +919,51 @@ def test_a_magnetometer_sample_overtaken_across_a_stamp_gap_is_reported_late(con
     path, _ = faulty_sim
     _, messages = load_messages(path, [IMU, MAG])
     imu_t = [read_imu(raw)[0] for _, topic, raw in messages if topic == IMU]
-    first_after_gap = next(k for k in range(1, len(imu_t) - 1) if imu_t[k + 1] - imu_t[k - 1] > 20.0 < imu_t[k] - imu_t[k - 1])  # (not the lone stamp ahead)
-    mag_before = max((k for k, (_, topic, raw) in enumerate(messages)
-                      if topic == MAG and read_mag(raw)[0] < imu_t[first_after_gap] - 20.0))
+    own, after = _overtaken(case, imu_t)
     node = reliable_node(context)
     answers = []
     node.pub_imu.publish = answers.append
     node.sync.hold_s = 1e-9  # a held sample's timeout has passed at the next look (as a loaded node's timer finds)
-    n_imu, withheld = 0, None
-    for k, (_, topic, raw) in enumerate(messages):
-        if k == mag_before:
-            withheld = raw
-            continue
+    n_imu, backlog, late = 0, None, []
+    for _, topic, raw in messages:
         if topic == MAG:
-            node._mag(raw)
+            if backlog is None and n_imu <= after and read_mag(raw)[0] == imu_t[own]:
+                backlog = []  # the stall begins
+            if backlog is not None and n_imu <= after:
+                backlog.append(raw)
+            else:
+                node._mag(raw)
             continue
         node._imu(raw)
         node._answer_all(node.sync.expire(time.monotonic()))
         n_imu += 1
-        if n_imu == first_after_gap + 1:
-            node._mag(withheld)
-            late = [(read_mag(withheld)[0], node.engine.n_in)]
+        if n_imu == after + 1:
+            for mag in backlog:
+                node._mag(mag)
+                late.append((read_mag(mag)[0], node.engine.n_in))
     node._answer_all(node.sync.flush(time.monotonic()))
-    assert node.stats.n_mag_late == 1
+    assert len(late) >= 2 and node.stats.n_mag_late == len(late)
     t_ref, q_ref = _engine_over_bag(path, late)
     msgs = [deserialize_message(bytes(a), Imu) for a in answers]
     q = np.array([from_xyzw(m.orientation.x, m.orientation.y, m.orientation.z, m.orientation.w) for m in msgs])
     np.testing.assert_array_equal([read_imu(bytes(a))[0] for a in answers], t_ref)
     np.testing.assert_array_equal(q, q_ref)
     assert not np.array_equal(q, _engine_over_bag(path)[1])  # (the delivery changed the answers: a test of a report)
+    node.destroy_node()
+
+
+def test_a_bag_loop_is_a_new_timeline_not_late_magnetometer_samples(context, sim_bag, tmp_path):
+    """The other side of the late report: a bag played twice in a row (the clock jumps back, the magnetometer's new
+    samples come before the IMU's that restart the filter) reports no sample late."""
+    from ccf_ros.offline.play import load_messages
+
+    _, messages = load_messages(copy_bag(sim_bag, tmp_path / 'sim3', stop_s=3.0), [IMU, MAG])
+    node = reliable_node(context)
+    node.pub_imu.publish = lambda _answer: None
+    for _, topic, raw in messages + messages:
+        (node._mag if topic == MAG else node._imu)(raw)
+    assert node.engine.n_resets_jump == 1 and node.stats.n_mag > 1000
+    assert node.stats.n_mag_late == 0
     node.destroy_node()
 
 

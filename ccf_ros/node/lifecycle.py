@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 from rcl_interfaces.msg import SetParametersResult
@@ -57,7 +56,7 @@ class CcfLifecycleNode(LifecycleNodeMixin, CcfNode):
         self._drop_pending_pose('cleanup drops the filter state')
         self.engine.reset()
         self.sync.reset()
-        self._t_imu_done = self._t_imu_before_jump = -math.inf
+        self._mag_clock_back = -1
         self.stats = InputStats()
         self._configured = False
         return TransitionCallbackReturn.SUCCESS

@@ -267,11 +267,8 @@ class CcfNode(Node):
         self.stats = InputStats()
         self._noticed: set[str] = set()
         self._last_bias_t = -math.inf
-        #: stamp of the IMU sample processed last (+ the pairer's tolerance): a magnetometer sample up to it is late
-        self._t_imu_done = -math.inf
-        #: the same before the last jump of the IMU stamps more than JUMP_BACK_RESET_S ahead (-inf if none since the
-        #: last jump back): a magnetometer sample up to it is late too, though far behind the IMU stamps now
-        self._t_imu_before_jump = -math.inf
+        #: the engine's timeline restarts when the magnetometer's clock jumped back ahead of the IMU's (-1: not now)
+        self._mag_clock_back = -1
         #: when each kind of throttled warning was last logged (time.monotonic(), s)
         self._last_warn: dict[str, float] = {}
         if not self._callbacks_added:
@@ -626,7 +623,7 @@ class CcfNode(Node):
             self._warn_throttled(f'unreadable magnetometer message ({len(data)} bytes) dropped: {err}')
             return
         now = time.monotonic()
-        if t <= self._t_imu_done:
+        if t <= self.engine.latest_stamp_s + MAG_TOLERANCE_S:
             self._mag_late(t)
         self.engine.on_mag(t, field)
         stats = self.stats
@@ -640,10 +637,13 @@ class CcfNode(Node):
         """A magnetometer sample comes after the IMU sample with its stamp (or a later one) was processed: replay
         would have paired it with that one (it timed out, or the sample overtook it over DDS). Counted; at debug
         level logged with where it landed, so that a test can rebuild the node's order exactly."""
-        before = self._t_imu_before_jump
-        if t < self._t_imu_done - JUMP_BACK_RESET_S and not before - JUMP_BACK_RESET_S <= t <= before:
-            # The clock jumped back (bag loop): a new timeline, not a late sample. Unless the IMU stamps jumped ahead
-            # (a gap) after the IMU sample of this stamp was processed: overtaken across the gap, it is late.
+        engine = self.engine
+        if t < engine.latest_stamp_s - JUMP_BACK_RESET_S and (
+                t < self.sync.mag_stamp_s - JUMP_BACK_RESET_S or self._mag_clock_back == engine.n_resets_jump):
+            # Far behind the IMU stamps, and the magnetometer's own clock jumped back (bag loop): a new timeline whose
+            # IMU samples have not come yet, not a late sample, until the engine restarts on them. (A sample late
+            # by more than a second, or across a gap of the IMU stamps, keeps to its own clock: late.)
+            self._mag_clock_back = engine.n_resets_jump
             return
         self.stats.n_mag_late += 1
         self.get_logger().debug(f'late magnetometer sample t={t!r} after IMU sample {self.engine.n_in}')
@@ -671,15 +671,6 @@ class CcfNode(Node):
         if self._frame_wanted and engine.wants_sensor_frame:
             engine.set_sensor_frame(path.frame_id(src))
         out = engine.on_imu(t, gyr, acc)
-        done = t + MAG_TOLERANCE_S
-        last = self._t_imu_done
-        if done > last:
-            if done > last + JUMP_BACK_RESET_S:
-                self._t_imu_before_jump = last  # a stamp gap (or a lone stamp ahead)
-            self._t_imu_done = done
-        elif done < last - JUMP_BACK_RESET_S:
-            self._t_imu_done = done
-            self._t_imu_before_jump = -math.inf
         if out is None:
             self._warn_unadvanced(t, out)
             return
@@ -777,17 +768,6 @@ class CcfNode(Node):
         if self._frame_wanted and engine.wants_sensor_frame:
             engine.set_sensor_frame(path.frame_id(src))
         out = engine.on_imu(t, gyr, acc)
-        # The latest stamp processed, not the last: a backward stamp in between must not hide a late sample; a clock
-        # jump back (bag loop) starts a new timeline.
-        done = t + MAG_TOLERANCE_S
-        last = self._t_imu_done
-        if done > last:
-            if done > last + JUMP_BACK_RESET_S:
-                self._t_imu_before_jump = last  # a stamp gap (or a lone stamp ahead)
-            self._t_imu_done = done
-        elif done < last - JUMP_BACK_RESET_S:
-            self._t_imu_done = done
-            self._t_imu_before_jump = -math.inf
         if out is None:
             self._warn_unadvanced(t, out)
             return
@@ -889,7 +869,7 @@ class CcfNode(Node):
         self._answer_all(self.sync.flush(time.monotonic()))
         self.engine.reset()
         self.sync.reset()
-        self._t_imu_done = self._t_imu_before_jump = -math.inf
+        self._mag_clock_back = -1
         resp.success = True
         resp.message = 'filter reset; re-initialising from the next sample with a valid accelerometer'
         self.get_logger().info(resp.message)
