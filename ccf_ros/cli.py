@@ -206,12 +206,10 @@ def cmd_play(args: argparse.Namespace) -> int:
     import rclpy
     from rclpy.exceptions import NotInitializedException
     from rclpy.executors import ExternalShutdownException
-    from rclpy.impl.implementation_singleton import rclpy_implementation
     from tqdm import tqdm
 
+    from .node.entry import RCLError, stop_signal_thread
     from .offline.play import load_messages, play
-
-    RCLError = rclpy_implementation.RCLError
 
     topics = [t for t in (args.topics or '').split(',') if t] or None
     types, messages = load_messages(args.bag, topics)
@@ -232,8 +230,6 @@ def cmd_play(args: argparse.Namespace) -> int:
         n = bar.n  # SIGINT while the node was made: rclpy's signal thread shut the context down under it
     finally:
         bar.close()
-        from .node.entry import stop_signal_thread
-
         stop_signal_thread()  # (before the shutdown: rclpy's signal thread would race it, see there)
         if node is not None:
             node.destroy_node()
