@@ -66,10 +66,10 @@ class Recorder:
         from diagnostic_msgs.msg import DiagnosticArray
         from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
         from rclpy.impl.implementation_singleton import rclpy_implementation
-
-        RCLError = rclpy_implementation.RCLError
         from rclpy.qos import QoSProfile, ReliabilityPolicy
         from sensor_msgs.msg import Imu
+
+        RCLError = rclpy_implementation.RCLError
 
         self.ctx = rclpy.Context()
         rclpy.init(context=self.ctx)
