@@ -343,6 +343,9 @@ class ImuEngine:
                 self.reset()
                 self.pairer.restart(t_s, JUMP_BACK_RESET_S)
                 self.n_resets_jump += 1
+                # The first stamp of the new timeline, as a fresh engine's first sample (a magnetometer sample that
+                # comes after it is measured against it: latest_stamp_s).
+                self._t_last = t_s
         else:
             self._n_far_back = 0
             if t_s > self._t_last:
@@ -780,9 +783,10 @@ class ImuEngine:
 
     @property
     def latest_stamp_s(self) -> float:
-        """Latest IMU stamp processed on the current timeline, s (-inf if none): stamps far behind it (until the
-        restart) and a lone stamp far ahead of it do not count. The pairer has handed out every magnetometer sample
-        up to it (+ its tolerance)."""
+        """Latest IMU stamp processed on the current timeline, s (-inf if none since the start or a reset): stamps
+        far behind it do not count until the timeline restarts on them (then the restarting stamp is the latest), nor
+        does a lone stamp far ahead of it. The pairer has handed out every magnetometer sample up to it (+ its
+        tolerance)."""
         return self._t_last
 
     @property

@@ -897,10 +897,11 @@ def _overtaken(case, imu_t):
     if case == 'after a stray stamp':  # after a lone stamp 30.5 s behind (the backward copy after the gap)
         k = next(k for k in range(1, len(imu_t) - 1) if imu_t[k] < min(imu_t[k - 1], imu_t[k + 1]) - 20.0)
         return k - 2, k
-    return 3000, 3400  # 'over a second late': 400 samples (1.4 s) late, without a gap
+    return 3000, 3400  # 'over a second late' (after a stray magnetometer stamp): 400 samples (1.4 s) late, no gap
 
 
-@pytest.mark.parametrize('case', ['across a gap', 'after a stray stamp', 'over a second late'])
+@pytest.mark.parametrize('case', ['across a gap', 'after a stray stamp', 'over a second late',
+                                  'over a second late after a stray magnetometer stamp'])
 def test_a_magnetometer_sample_overtaken_is_reported_late(context, faulty_sim, case):
     """The node's report of late magnetometer samples is what lets a test rebuild its order (and a user see it).
     A suite run under load failed the live faults test: answers differed from the reference, with the reported late
@@ -909,8 +910,9 @@ def test_a_magnetometer_sample_overtaken_is_reported_late(context, faulty_sim, c
     (released by the hold timeout), far behind their stamps: across the 30 s stamp gap, after a lone stamp 30.5 s
     behind, or 1.4 s late. The node took such samples for a clock jump back (a new timeline), or a stray stamp for
     the IMU's latest, and did not report them; every one must be reported, and the answers then equal the reference
-    exactly."""
-    from rclpy.serialization import deserialize_message
+    exactly. A lone magnetometer stamp 5 s behind (after IMU sample 2000; left unpaired, so the reference without
+    it holds) must not hide the samples later over a second late either."""
+    from rclpy.serialization import deserialize_message, serialize_message
 
     from ccf_ros.core.quaternion import from_xyzw
     from ccf_ros.messages.cdr import read_imu, read_mag
@@ -925,7 +927,14 @@ def test_a_magnetometer_sample_overtaken_is_reported_late(context, faulty_sim, c
     node.pub_imu.publish = answers.append
     node.sync.hold_s = 1e-9  # a held sample's timeout has passed at the next look (as a loaded node's timer finds)
     n_imu, backlog, late = 0, None, []
+    stray_after = 2000 if case.endswith('stray magnetometer stamp') else -1
     for _, topic, raw in messages:
+        if topic == MAG and n_imu == stray_after:
+            stray = deserialize_message(raw, MagneticField)
+            stray.header.stamp.sec -= 5
+            node._mag(serialize_message(stray))
+            assert node.stats.n_mag_late == 0  # (taken for a jump back of the magnetometer's clock, not counted)
+            stray_after = -1
         if topic == MAG:
             if backlog is None and n_imu <= after and read_mag(raw)[0] == imu_t[own]:
                 backlog = []  # the stall begins
@@ -952,18 +961,57 @@ def test_a_magnetometer_sample_overtaken_is_reported_late(context, faulty_sim, c
     node.destroy_node()
 
 
-def test_a_bag_loop_is_a_new_timeline_not_late_magnetometer_samples(context, sim_bag, tmp_path):
-    """The other side of the late report: a bag played twice in a row (the clock jumps back, the magnetometer's new
-    samples come before the IMU's that restart the filter) reports no sample late."""
+def _bag_loop(context, sim_bag, tmp_path, edit=None, *, timeout=False):
+    """A node fed 3 s of the simulated bag twice in a row, the second copy's messages edited by ``edit`` (list in,
+    list out); ``timeout``: the hold timed out at each IMU sample held (as a loaded node's timer finds). Returns the
+    node."""
     from ccf_ros.offline.play import load_messages
 
     _, messages = load_messages(copy_bag(sim_bag, tmp_path / 'sim3', stop_s=3.0), [IMU, MAG])
     node = reliable_node(context)
     node.pub_imu.publish = lambda _answer: None
-    for _, topic, raw in messages + messages:
+    for _, topic, raw in messages + (edit or list)(messages):
         (node._mag if topic == MAG else node._imu)(raw)
+        if timeout and topic == IMU:
+            node._answer_all(node.sync.expire(time.monotonic() + node.HOLD_S))
     assert node.engine.n_resets_jump == 1 and node.stats.n_mag > 1000
+    return node
+
+
+def _imu_first(messages):
+    """The first IMU message ahead of the messages before it (its magnetometer sample)."""
+    k = next(k for k, m in enumerate(messages) if m[1] == IMU)
+    return [messages[k], *messages[:k], *messages[k + 1:]]
+
+
+@pytest.mark.parametrize('first', ['magnetometer', 'IMU'])
+def test_a_bag_loop_is_a_new_timeline_not_late_magnetometer_samples(context, sim_bag, tmp_path, first):
+    """The other side of the late report: a bag played twice in a row (the clock jumps back, the magnetometer's new
+    samples come before the IMU's that restart the filter) reports no sample late; also when the loop's first IMU
+    sample comes before its magnetometer sample (held for it: the IMU's jump back must not hide the
+    magnetometer's)."""
+    node = _bag_loop(context, sim_bag, tmp_path, _imu_first if first == 'IMU' else None)
     assert node.stats.n_mag_late == 0
+    node.destroy_node()
+
+
+def test_a_late_sample_right_after_a_bag_loop_restart_is_reported(context, sim_bag, tmp_path):
+    """The magnetometer sample of the IMU sample that restarts the filter on the new timeline comes right after it
+    (the hold timed out): late, measured against that restarting stamp (the engine has no other yet)."""
+    from ccf_ros.engine import JUMP_BACK_SAMPLES
+    from ccf_ros.messages.cdr import read_imu, read_mag
+
+    def mag_after_restart(messages):
+        imu = [m for m in messages if m[1] == IMU]
+        restart = imu[JUMP_BACK_SAMPLES - 1]  # the new timeline's IMU sample that restarts the filter
+        t = read_imu(restart[2])[0]
+        mag = next(m for m in messages if m[1] == MAG and read_mag(m[2])[0] == t)
+        out = [m for m in messages if m is not mag]
+        out.insert(out.index(restart) + 1, mag)
+        return out
+
+    node = _bag_loop(context, sim_bag, tmp_path, mag_after_restart, timeout=True)
+    assert node.stats.n_mag_late == 1
     node.destroy_node()
 
 

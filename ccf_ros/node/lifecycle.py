@@ -56,7 +56,7 @@ class CcfLifecycleNode(LifecycleNodeMixin, CcfNode):
         self._drop_pending_pose('cleanup drops the filter state')
         self.engine.reset()
         self.sync.reset()
-        self._mag_clock_back = -1
+        self._forget_mag_clock()
         self.stats = InputStats()
         self._configured = False
         return TransitionCallbackReturn.SUCCESS

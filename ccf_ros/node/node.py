@@ -267,6 +267,8 @@ class CcfNode(Node):
         self.stats = InputStats()
         self._noticed: set[str] = set()
         self._last_bias_t = -math.inf
+        #: the magnetometer's latest stamp, s: one far behind it is the magnetometer's clock jumping back
+        self._mag_prev_t = -math.inf
         #: the engine's timeline restarts when the magnetometer's clock jumped back ahead of the IMU's (-1: not now)
         self._mag_clock_back = -1
         #: when each kind of throttled warning was last logged (time.monotonic(), s)
@@ -625,6 +627,9 @@ class CcfNode(Node):
         now = time.monotonic()
         if t <= self.engine.latest_stamp_s + MAG_TOLERANCE_S:
             self._mag_late(t)
+        elif self._mag_clock_back >= 0:
+            self._mag_clock_back = -1  # ahead of the IMU's stamps: the magnetometer is on the IMU's timeline again
+        self._mag_prev_t = t
         self.engine.on_mag(t, field)
         stats = self.stats
         stats.last_mag = now  # InputStats.on_mag written out (changes together with it)
@@ -633,18 +638,25 @@ class CcfNode(Node):
         if released:
             self._answer_all(released)
 
+    def _forget_mag_clock(self) -> None:
+        """Forget the magnetometer's timeline (a reset, a cleanup): as at the start."""
+        self._mag_prev_t = -math.inf
+        self._mag_clock_back = -1
+
     def _mag_late(self, t: float) -> None:
         """A magnetometer sample comes after the IMU sample with its stamp (or a later one) was processed: replay
         would have paired it with that one (it timed out, or the sample overtook it over DDS). Counted; at debug
         level logged with where it landed, so that a test can rebuild the node's order exactly."""
         engine = self.engine
-        if t < engine.latest_stamp_s - JUMP_BACK_RESET_S and (
-                t < self.sync.mag_stamp_s - JUMP_BACK_RESET_S or self._mag_clock_back == engine.n_resets_jump):
-            # Far behind the IMU stamps, and the magnetometer's own clock jumped back (bag loop): a new timeline whose
-            # IMU samples have not come yet, not a late sample, until the engine restarts on them. (A sample late
-            # by more than a second, or across a gap of the IMU stamps, keeps to its own clock: late.)
-            self._mag_clock_back = engine.n_resets_jump
-            return
+        if t < engine.latest_stamp_s - JUMP_BACK_RESET_S:
+            if t < self._mag_prev_t - JUMP_BACK_RESET_S or self._mag_clock_back == engine.n_resets_jump:
+                # Far behind the IMU stamps, and the magnetometer's own clock jumped back (bag loop): a new timeline
+                # whose IMU samples have not come yet, not a late sample, until the engine restarts on them. (A
+                # sample late by more than a second, or across a gap of the IMU stamps, keeps to its own clock: late.)
+                self._mag_clock_back = engine.n_resets_jump
+                return
+        else:
+            self._mag_clock_back = -1  # late, but on the IMU's timeline
         self.stats.n_mag_late += 1
         self.get_logger().debug(f'late magnetometer sample t={t!r} after IMU sample {self.engine.n_in}')
 
@@ -869,7 +881,7 @@ class CcfNode(Node):
         self._answer_all(self.sync.flush(time.monotonic()))
         self.engine.reset()
         self.sync.reset()
-        self._mag_clock_back = -1
+        self._forget_mag_clock()
         resp.success = True
         resp.message = 'filter reset; re-initialising from the next sample with a valid accelerometer'
         self.get_logger().info(resp.message)

@@ -228,11 +228,6 @@ class ImuMagSync(Generic[T]):
         return len(self._held)
 
     @property
-    def mag_stamp_s(self) -> float:
-        """Latest magnetometer stamp on the current timeline, s (-inf if none since the start or a reset)."""
-        return self._mag_t
-
-    @property
     def holding(self) -> bool:
         """Some samples are held."""
         return bool(self._held)
