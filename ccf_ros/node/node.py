@@ -648,15 +648,13 @@ class CcfNode(Node):
         would have paired it with that one (it timed out, or the sample overtook it over DDS). Counted; at debug
         level logged with where it landed, so that a test can rebuild the node's order exactly."""
         engine = self.engine
-        if t < engine.latest_stamp_s - JUMP_BACK_RESET_S:
-            if t < self._mag_prev_t - JUMP_BACK_RESET_S or self._mag_clock_back == engine.n_resets_jump:
-                # Far behind the IMU stamps, and the magnetometer's own clock jumped back (bag loop): a new timeline
-                # whose IMU samples have not come yet, not a late sample, until the engine restarts on them. (A
-                # sample late by more than a second, or across a gap of the IMU stamps, keeps to its own clock: late.)
-                self._mag_clock_back = engine.n_resets_jump
-                return
-        else:
-            self._mag_clock_back = -1  # late, but on the IMU's timeline
+        if t < engine.latest_stamp_s - JUMP_BACK_RESET_S and (
+                t < self._mag_prev_t - JUMP_BACK_RESET_S or self._mag_clock_back == engine.n_resets_jump):
+            # Far behind the IMU stamps, and the magnetometer's own clock jumped back (bag loop): a new timeline whose
+            # IMU samples have not come yet, not a late sample, until the engine restarts on them. (A sample late
+            # by more than a second, or across a gap of the IMU stamps, keeps to its own clock: late.)
+            self._mag_clock_back = engine.n_resets_jump
+            return
         self.stats.n_mag_late += 1
         self.get_logger().debug(f'late magnetometer sample t={t!r} after IMU sample {self.engine.n_in}')
 
