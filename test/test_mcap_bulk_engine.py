@@ -18,7 +18,8 @@ def _stream(mag_offset_t: tuple[float, float, float] | None = None, duration_s: 
             ) -> tuple[list[bool], list[float], np.ndarray, np.ndarray]:
     """Interleaved magnetometer and IMU messages (mag first, each with its IMU sample's stamp) of 30 s at 100 Hz,
     with faults: no usable accelerometer at the start, a repeated and a slightly backward stamp, a NaN gyro and a
-    NaN stamp, a lone stamp 5 s ahead, a real 3 s gap, and the clock jumping back 20 s (a restart).
+    NaN stamp, a lone stamp 5 s ahead, a real 3 s gap, the clock jumping back 20 s (a restart) and a lone stamp 5 s
+    ahead of the restarting one (skipped as after any other stamp: no second restart).
     ``mag_offset_t``: a magnetometer offset carried by the body, T (for the online hard iron to find)."""
     d = generate(duration_s, 100.0, seed=3)
     t = d.t_s.copy()
@@ -32,7 +33,8 @@ def _stream(mag_offset_t: tuple[float, float, float] | None = None, duration_s: 
     t[600] = math.nan
     t[700] = t[699] + 5.0  # a lone stamp far ahead: skipped
     t[1000:] += 3.0  # a gap: the filter re-initialises
-    t[2000:] -= 20.0  # the clock jumps back: a restart after JUMP_BACK_SAMPLES
+    t[2000:] -= 20.0  # the clock jumps back: a restart after JUMP_BACK_SAMPLES (at 2002)
+    t[2003] = t[2002] + 5.0  # a lone stamp far ahead right after the restart
     n = len(t)
     is_imu = [False, True] * n
     stamps = np.repeat(t, 2).tolist()
