@@ -490,6 +490,10 @@ class ImuEngine:
                     tm, m = popleft()
                     if tm >= t_in_use:
                         t_in_use, field = tm, m
+                if pend and pend[-1][0] <= limit:  # (MagPairer.get's rare path: a stray stamp far ahead)
+                    pairer._t_in_use, pairer._field_in_use = t_in_use, field
+                    pairer.skip_strays_ahead(t, limit)
+                    t_in_use, field = pairer._t_in_use, pairer._field_in_use
             mag = None if field is None or t - t_in_use > timeout else field
             if hi is not None:
                 # on_imu's online hard iron (pair, keep when due, subtract the offset)

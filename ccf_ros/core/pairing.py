@@ -13,6 +13,11 @@ class MagPairer:
     ``>= t - timeout_s``. Messages are processed in arrival order (bag order in replay, callback order in the node),
     which makes both paths pair identically.
 
+    A sample that waits at the front while a later one is due is out of stamp order; if it is stamped more than
+    ``timeout_s`` ahead of both the IMU stamp and the sample in use, it is a stray stamp (a glitch of the
+    magnetometer's clock, not the magnetometer running ahead) and is dropped (counted in :attr:`n_stray_ahead`), so
+    that it does not hold back every sample behind it until the queue's length pushes it out.
+
     Args:
         timeout_s: oldest magnetometer sample still used, s before the IMU stamp. Default 0.5 s.
         tolerance_s: a magnetometer stamp up to this much after the IMU stamp still counts (clock jitter), s.
@@ -25,6 +30,8 @@ class MagPairer:
             raise ValueError(f'mag tolerance_s must be a finite number >= 0, got {tolerance_s!r}')
         self.timeout_s = timeout_s
         self.tolerance_s = tolerance_s
+        #: stray magnetometer stamps dropped (far ahead, with due samples behind them), over the pairer's life
+        self.n_stray_ahead = 0
         self.reset()
 
     def reset(self) -> None:
@@ -58,9 +65,28 @@ class MagPairer:
                 tm, m = pending.popleft()
                 if tm >= self._t_in_use:
                     self._t_in_use, self._field_in_use = tm, m
+            if pending and pending[-1][0] <= limit:
+                # The front waits while the latest sample is due: out of stamp order (rare).
+                self.skip_strays_ahead(t_s, limit)
         if self._field_in_use is None or t_s - self._t_in_use > self.timeout_s:
             return None
         return self._field_in_use
+
+    def skip_strays_ahead(self, t_s: float, limit: float) -> None:
+        """The rare path of :meth:`get` for an IMU sample at ``t_s`` (s; ``limit``: ``t_s`` + tolerance): drop the
+        front samples stamped more than ``timeout_s`` ahead of ``t_s`` and of the sample in use, then take the due
+        ones. A front sample less far ahead stays (the IMU's clock jumped back first, before the filter restarts on
+        the new timeline: the old timeline's next samples are still ahead of the new stamps)."""
+        pending = self._pending
+        t_in_use = self._t_in_use
+        ahead = (t_s if t_s > t_in_use else t_in_use) + self.timeout_s
+        while pending and pending[0][0] > ahead:
+            pending.popleft()
+            self.n_stray_ahead += 1
+        while pending and pending[0][0] <= limit:
+            tm, m = pending.popleft()
+            if tm >= self._t_in_use:
+                self._t_in_use, self._field_in_use = tm, m
 
     @property
     def stamp_in_use_s(self) -> float:
