@@ -490,7 +490,7 @@ class ImuEngine:
                     tm, m = popleft()
                     if tm >= t_in_use:
                         t_in_use, field = tm, m
-                if pend and pend[-1][0] <= limit:  # (MagPairer.get's rare path: a stray stamp far ahead)
+                if pend and not pend[0][0] - t <= timeout:  # (MagPairer.get's rare path: perhaps a stray stamp)
                     pairer._t_in_use, pairer._field_in_use = t_in_use, field
                     pairer.skip_strays_ahead(t, limit)
                     t_in_use, field = pairer._t_in_use, pairer._field_in_use

@@ -165,22 +165,29 @@ def test_a_lone_stamp_far_ahead_is_skipped_and_a_real_gap_reinitialises(sim):
     assert outs[k].orientation_xyzw == outs[k - 1].orientation_xyzw
 
 
+@pytest.mark.parametrize('lead', [0, 3])
 @pytest.mark.parametrize('strays', [1, 2])
-def test_a_stray_magnetometer_stamp_far_ahead_does_not_hold_back_the_samples_behind_it(sim, strays):
-    """One (or two in a row) magnetometer stamps 5 s ahead, the IMU's stamps unchanged: the stray waited at the
-    front of the pairer's queue until 256 later samples pushed it out, and the IMU samples after the sample in use
-    timed out (0.5 s) got none (at 200 Hz 156 of them). Now it is dropped at the next IMU sample with a due sample
-    behind it, and every IMU sample is paired as without it."""
+def test_a_stray_magnetometer_stamp_far_ahead_does_not_hold_back_the_samples_behind_it(sim, strays, lead):
+    """One (or two in a row) magnetometer stamps 5 s ahead, the IMU's stamps unchanged, each magnetometer sample
+    arriving with its IMU sample or ``lead`` IMU samples before it: the stray waited at the front of the pairer's
+    queue until 256 later samples pushed it out, and the IMU samples after the sample in use timed out (0.5 s) got
+    none (at 200 Hz 156 of them). Now it is dropped once a sample not far ahead is queued behind it, and every IMU
+    sample is paired as without it."""
     k = len(sim.t_s) // 2
+    n = len(sim.t_s)
     tm = sim.t_s.copy()
     tm[k:k + strays] += 5.0
     clean, eng = ImuEngine(make_filter()), ImuEngine(make_filter())
     unpaired = 0
     q_clean, q_stray = [], []
-    for i in range(len(sim.t_s)):
+    for j in range(lead):
+        clean.on_mag(float(sim.t_s[j]), tuple(sim.mag[j]))
+        eng.on_mag(float(tm[j]), tuple(sim.mag[j]))
+    for i in range(n):
         t, g, a = float(sim.t_s[i]), tuple(sim.gyr[i]), tuple(sim.acc[i])
-        clean.on_mag(t, tuple(sim.mag[i]))
-        eng.on_mag(float(tm[i]), tuple(sim.mag[i]))
+        if (j := i + lead) < n:
+            clean.on_mag(float(sim.t_s[j]), tuple(sim.mag[j]))
+            eng.on_mag(float(tm[j]), tuple(sim.mag[j]))
         clean.on_imu(t, g, a)
         eng.on_imu(t, g, a)
         unpaired += eng.paired_mag is None
@@ -189,35 +196,72 @@ def test_a_stray_magnetometer_stamp_far_ahead_does_not_hold_back_the_samples_beh
         if not k <= i < k + strays:  # (at the strays' own IMU samples the previous field is in use: 5 ms old)
             assert eng.paired_mag == clean.paired_mag, i
     assert unpaired == 0 and eng.pairer.n_stray_ahead == strays and clean.pairer.n_stray_ahead == 0
-    eng.reset()  # (the count is the pairer's, kept across the engine's restarts as the other counters are)
-    d = diagnostics(0.0, InputStats(), eng, HoldStats(0, 0, 0.0, 0.0, False), use_mag=True, mag_timeout_s=0.5)
-    assert d.values['magnetometer stamps far ahead dropped'] == str(strays)
     # Only the strays' own IMU samples took the previous field (5 ms older): 0.0004 deg at most, measured (before:
     # 156 samples unpaired, 0.053 deg).
     diff = np.degrees(error_angles(np.array(q_stray), np.array(q_clean))[0])
     assert diff.max() < 0.0005, diff.max()
+    eng.reset()  # (the count is the pairer's, kept across the engine's restarts as the other counters are)
+    d = diagnostics(0.0, InputStats(), eng, HoldStats(0, 0, 0.0, 0.0, False), use_mag=True, mag_timeout_s=0.5)
+    assert d.values['stray magnetometer stamps dropped (far ahead or NaN)'] == str(strays)
+
+
+def _pairings(messages: list[tuple[str, float]]) -> list[float]:
+    """The stamp of the magnetometer sample each IMU sample is paired with (nan: none), messages in the given order
+    (('mag' or 'imu', stamp s)); the field carries the magnetometer stamp."""
+    p = MagPairer()
+    out = []
+    for kind, t in messages:
+        if kind == 'mag':
+            p.add(t, (t, 0.0, 0.0))
+        else:
+            m = p.get(t)
+            out.append(math.nan if m is None else m[0])
+    return out
 
 
 def test_a_magnetometer_sample_ahead_of_a_clock_jump_back_is_not_a_stray():
     """The IMU's clock jumped back first (bag loop): the old timeline's next magnetometer sample waits ahead of the
-    new IMU stamps with the new timeline's samples due behind it. It is near the sample in use, so it stays (as the
-    new ones do, for the restart), and it still pairs with the old timeline."""
+    new IMU stamps with the new timeline's samples queued behind it. The sample in use is the old timeline's too, so
+    nothing is dropped (the new ones stay for the restart), also when the sample in use is older than the timeout
+    (a magnetometer pause before the loop)."""
+    for t_used in (10.00, 9.00):
+        p = MagPairer()
+        p.add(t_used, (1.0, 0.0, 0.0))
+        assert p.get(10.00) == ((1.0, 0.0, 0.0) if t_used == 10.0 else None)
+        p.add(10.01, (2.0, 0.0, 0.0))  # the old timeline's next sample ...
+        p.add(0.00, (3.0, 0.0, 0.0))  # ... and the new one's first
+        p.get(0.00)
+        assert p.n_stray_ahead == 0 and [tm for tm, _ in p._pending] == [10.01, 0.00]
+        p.restart(0.00, 1.0)
+        assert p.get(0.00) == (3.0, 0.0, 0.0)
+    # A stamp far ahead (or NaN) with a sample not far ahead behind it is dropped; a magnetometer clock that runs
+    # ahead (every queued sample far ahead) is not.
     p = MagPairer()
     p.add(10.00, (1.0, 0.0, 0.0))
-    assert p.get(10.00) == (1.0, 0.0, 0.0)
-    p.add(10.01, (2.0, 0.0, 0.0))  # the old timeline's next sample ...
-    p.add(0.00, (3.0, 0.0, 0.0))  # ... and the new one's first
-    assert p.get(0.00) == (1.0, 0.0, 0.0) and p.n_stray_ahead == 0  # (the new sample is older than the one in use)
-    assert p.get(10.01) == (2.0, 0.0, 0.0)
-    # A stamp far ahead of both the IMU stamp and the sample in use, with a due sample behind it, is dropped.
     p.add(20.0, (4.0, 0.0, 0.0))
-    p.add(10.02, (5.0, 0.0, 0.0))
-    assert p.get(10.02) == (5.0, 0.0, 0.0) and p.n_stray_ahead == 1
-    # Without a due sample behind it, a sample far ahead waits (a magnetometer clock ahead of the IMU's).
-    p.add(30.0, (6.0, 0.0, 0.0))
-    p.add(30.01, (7.0, 0.0, 0.0))
-    assert p.get(10.03) == (5.0, 0.0, 0.0) and p.n_stray_ahead == 1
-    assert p.get(30.0) == (6.0, 0.0, 0.0)
+    p.add(math.nan, (5.0, 0.0, 0.0))
+    assert p.get(10.00) == (1.0, 0.0, 0.0) and p.n_stray_ahead == 0  # (nothing queued behind them yet)
+    p.add(10.02, (6.0, 0.0, 0.0))
+    assert p.get(10.01) == (1.0, 0.0, 0.0) and p.n_stray_ahead == 2 and [tm for tm, _ in p._pending] == [10.02]
+    assert p.get(10.02) == (6.0, 0.0, 0.0)
+    p.add(30.0, (7.0, 0.0, 0.0))
+    p.add(30.01, (8.0, 0.0, 0.0))
+    assert p.get(10.03) == (6.0, 0.0, 0.0) and p.n_stray_ahead == 2
+    assert p.get(30.0) == (7.0, 0.0, 0.0)
+
+
+def test_a_stray_is_paired_around_alike_in_bag_order_and_magnetometer_first():
+    """The node takes queued magnetometer samples before an IMU sample (several under a backlog); replay takes them
+    in bag order. With a stray stamp among them, every IMU sample still gets the same magnetometer sample."""
+    stamps = [round(10.0 + 0.005 * i, 3) for i in range(40)]
+    mag = [15.0 if i == 8 else t for i, t in enumerate(stamps)]
+    bag = [m for i in range(40) for m in (('mag', mag[i]), ('imu', stamps[i]))]
+    # magnetometer first: a backlog of 4 samples each time (a 20 ms stall of the node)
+    backlog = [m for b in range(0, 40, 4) for m in [('mag', mag[i]) for i in range(b, b + 4)]
+               + [('imu', stamps[i]) for i in range(b, b + 4)]]
+    paired = _pairings(bag)
+    assert paired == _pairings(backlog)
+    assert paired[8] == stamps[7] and paired[9:] == stamps[9:]  # (none for the stray's own: the previous one)
 
 
 def test_a_bag_loop_reinitialises_with_the_magnetometer_and_keeps_the_disturbance_gate(sim):

@@ -13,10 +13,11 @@ class MagPairer:
     ``>= t - timeout_s``. Messages are processed in arrival order (bag order in replay, callback order in the node),
     which makes both paths pair identically.
 
-    A sample that waits at the front while a later one is due is out of stamp order; if it is stamped more than
-    ``timeout_s`` ahead of both the IMU stamp and the sample in use, it is a stray stamp (a glitch of the
-    magnetometer's clock, not the magnetometer running ahead) and is dropped (counted in :attr:`n_stray_ahead`), so
-    that it does not hold back every sample behind it until the queue's length pushes it out.
+    A stray stamp (a glitch of the magnetometer's clock) would wait at the front and hold back every sample behind it
+    until the queue's length pushed it out. So a front sample stamped more than ``timeout_s`` ahead of the IMU stamp
+    (or NaN) is dropped, counted in :attr:`n_stray_ahead`, while the newest queued sample is not that far ahead (the
+    stream has gone on behind it) and the sample in use is not either (else the IMU's clock jumped back: a bag loop,
+    which :meth:`restart` handles). A magnetometer clock that runs more than ``timeout_s`` ahead is left as it is.
 
     Args:
         timeout_s: oldest magnetometer sample still used, s before the IMU stamp. Default 0.5 s.
@@ -30,7 +31,7 @@ class MagPairer:
             raise ValueError(f'mag tolerance_s must be a finite number >= 0, got {tolerance_s!r}')
         self.timeout_s = timeout_s
         self.tolerance_s = tolerance_s
-        #: stray magnetometer stamps dropped (far ahead, with due samples behind them), over the pairer's life
+        #: stray magnetometer stamps dropped (far ahead of the IMU stamp and of later samples), over the pairer's life
         self.n_stray_ahead = 0
         self.reset()
 
@@ -65,22 +66,22 @@ class MagPairer:
                 tm, m = pending.popleft()
                 if tm >= self._t_in_use:
                     self._t_in_use, self._field_in_use = tm, m
-            if pending and pending[-1][0] <= limit:
-                # The front waits while the latest sample is due: out of stamp order (rare).
+            if pending and not pending[0][0] - t_s <= self.timeout_s:
+                # The front is far ahead of this IMU stamp (or NaN): perhaps a stray (rare).
                 self.skip_strays_ahead(t_s, limit)
         if self._field_in_use is None or t_s - self._t_in_use > self.timeout_s:
             return None
         return self._field_in_use
 
     def skip_strays_ahead(self, t_s: float, limit: float) -> None:
-        """The rare path of :meth:`get` for an IMU sample at ``t_s`` (s; ``limit``: ``t_s`` + tolerance): drop the
-        front samples stamped more than ``timeout_s`` ahead of ``t_s`` and of the sample in use, then take the due
-        ones. A front sample less far ahead stays (the IMU's clock jumped back first, before the filter restarts on
-        the new timeline: the old timeline's next samples are still ahead of the new stamps)."""
+        """The rare path of :meth:`get` for an IMU sample at ``t_s`` (s; ``limit``: ``t_s`` + tolerance) whose queue's
+        front is more than ``timeout_s`` ahead of it: drop the front samples that far ahead (or NaN) if the newest
+        one and the one in use are not, then take the due ones."""
         pending = self._pending
-        t_in_use = self._t_in_use
-        ahead = (t_s if t_s > t_in_use else t_in_use) + self.timeout_s
-        while pending and pending[0][0] > ahead:
+        ahead = t_s + self.timeout_s
+        if not (pending[-1][0] <= ahead and self._t_in_use <= ahead):
+            return  # (the magnetometer's clock runs ahead, or the IMU's jumped back; or NaN: nothing known)
+        while not pending[0][0] <= ahead:  # (stops at the newest at the latest)
             pending.popleft()
             self.n_stray_ahead += 1
         while pending and pending[0][0] <= limit:

@@ -77,7 +77,7 @@ def diagnostics(
         'samples in': str(engine.n_in),
         'magnetometer samples in': str(stats.n_mag),
         'magnetometer samples after their IMU sample': str(stats.n_mag_late),
-        'magnetometer stamps far ahead dropped': str(engine.pairer.n_stray_ahead),
+        'stray magnetometer stamps dropped (far ahead or NaN)': str(engine.pairer.n_stray_ahead),
         'samples answered': str(engine.answered()),
         'samples answered with the current orientation (could not advance the filter)': str(engine.n_answered_stale),
         'share of the latest answers with a held orientation': f'{engine.stale_share:.2f}',
