@@ -234,8 +234,26 @@ def test_a_magnetometer_sample_ahead_of_a_clock_jump_back_is_not_a_stray():
         assert p.n_stray_ahead == 0 and [tm for tm, _ in p._pending] == [10.01, 0.00]
         p.restart(0.00, 1.0)
         assert p.get(0.00) == (3.0, 0.0, 0.0)
-    # A stamp far ahead (or NaN) with a sample not far ahead behind it is dropped; a magnetometer clock that runs
-    # ahead (every queued sample far ahead) is not.
+    # The magnetometer's clock jumps back first (its new timeline queued while the IMU is still on the old one,
+    # after a magnetometer pause): the old timeline's next sample, 0.55 s ahead, is no stray either.
+    p = MagPairer()
+    p.add(7.00, (1.0, 0.0, 0.0))
+    p.get(7.00)
+    for t in (8.00, 0.00, 0.01, 0.02):
+        p.add(t, (t, 0.0, 0.0))
+    p.get(7.45)
+    assert p.n_stray_ahead == 0 and [tm for tm, _ in p._pending] == [8.00, 0.00, 0.01, 0.02]
+    p.restart(0.00, 1.0)
+    assert p.get(0.02) == (0.02, 0.0, 0.0)
+    # A magnetometer clock 1.5 s ahead (every queued sample far ahead), then one stamp far behind (an unset header):
+    # nothing is a stray, the samples ahead pair when the IMU reaches them.
+    p = MagPairer()
+    for t in (101.5, 101.6, 101.7, 0.0):
+        p.add(t, (t, 0.0, 0.0))
+    assert p.get(100.0) is None and p.n_stray_ahead == 0 and len(p._pending) == 4
+    assert p.get(101.5) == (101.5, 0.0, 0.0)
+    # A stamp far ahead (or NaN) with a current sample behind it is dropped; a magnetometer clock that runs ahead
+    # (every queued sample far ahead) is not.
     p = MagPairer()
     p.add(10.00, (1.0, 0.0, 0.0))
     p.add(20.0, (4.0, 0.0, 0.0))

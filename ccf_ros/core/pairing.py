@@ -15,9 +15,10 @@ class MagPairer:
 
     A stray stamp (a glitch of the magnetometer's clock) would wait at the front and hold back every sample behind it
     until the queue's length pushed it out. So a front sample stamped more than ``timeout_s`` ahead of the IMU stamp
-    (or NaN) is dropped, counted in :attr:`n_stray_ahead`, while the newest queued sample is not that far ahead (the
-    stream has gone on behind it) and the sample in use is not either (else the IMU's clock jumped back: a bag loop,
-    which :meth:`restart` handles). A magnetometer clock that runs more than ``timeout_s`` ahead is left as it is.
+    (or NaN) is dropped, counted in :attr:`n_stray_ahead`, while the newest queued sample is a current one (within
+    ``timeout_s`` of the IMU stamp: the stream has gone on behind the stray) and the sample in use is not far ahead
+    either (else the IMU's clock jumped back). A magnetometer clock that runs more than ``timeout_s`` ahead, or whose
+    newest sample is far behind (its clock jumped back: a bag loop, which :meth:`restart` handles), is left as it is.
 
     Args:
         timeout_s: oldest magnetometer sample still used, s before the IMU stamp. Default 0.5 s.
@@ -31,7 +32,7 @@ class MagPairer:
             raise ValueError(f'mag tolerance_s must be a finite number >= 0, got {tolerance_s!r}')
         self.timeout_s = timeout_s
         self.tolerance_s = tolerance_s
-        #: stray magnetometer stamps dropped (far ahead of the IMU stamp and of later samples), over the pairer's life
+        #: stray magnetometer stamps dropped (far ahead of the IMU stamp, a current sample behind), over the pairer's life
         self.n_stray_ahead = 0
         self.reset()
 
@@ -76,11 +77,13 @@ class MagPairer:
     def skip_strays_ahead(self, t_s: float, limit: float) -> None:
         """The rare path of :meth:`get` for an IMU sample at ``t_s`` (s; ``limit``: ``t_s`` + tolerance) whose queue's
         front is more than ``timeout_s`` ahead of it: drop the front samples that far ahead (or NaN) if the newest
-        one and the one in use are not, then take the due ones."""
+        one is within ``timeout_s`` of ``t_s`` and the one in use is not far ahead, then take the due ones."""
         pending = self._pending
         ahead = t_s + self.timeout_s
-        if not (pending[-1][0] <= ahead and self._t_in_use <= ahead):
-            return  # (the magnetometer's clock runs ahead, or the IMU's jumped back; or NaN: nothing known)
+        if not (t_s - self.timeout_s <= pending[-1][0] <= ahead and self._t_in_use <= ahead):
+            # The newest is not a current sample (the magnetometer's clock runs ahead, jumped back or sent a stamp
+            # far behind), or the IMU's clock jumped back; or NaN: nothing is known to be a stray.
+            return
         while not pending[0][0] <= ahead:  # (stops at the newest at the latest)
             pending.popleft()
             self.n_stray_ahead += 1
