@@ -143,13 +143,17 @@ class ImuEngine:
         #: share of the latest ~100 answers given with a held orientation (running mean; 0 at the start)
         self.stale_share = 0.0
         self._t_const = 0.0
-        self._t_last = -math.inf
+        #: latest IMU stamp processed on the current timeline, s (-inf if none since the start or a reset; read-only
+        #: for the caller: an attribute, as the node reads it per magnetometer message): stamps far behind it do not
+        #: count until the timeline restarts on them (then the restarting stamp is the latest), nor does a lone stamp
+        #: far ahead of it. The pairer has handed out every magnetometer sample up to it (+ its tolerance).
+        self.latest_stamp_s = -math.inf
         #: the time the latest IMU sample was given to the filter at, s: its stamp, or the constant_dt clock
         self.clock_s = -math.inf
         #: the (calibrated) magnetometer sample paired with the latest IMU sample (None: none)
         self.paired_mag: Vec3 | None = None
         self._n_far_back = 0
-        #: stamp of a lone sample far ahead of _t_last, waiting for the next one to confirm it (None: none)
+        #: stamp of a lone sample far ahead of latest_stamp_s, waiting for the next one to confirm it (None: none)
         self._t_ahead: float | None = None
         self._counts_before = [0] * len(filt.counts)
         self._no_acc_before = 0
@@ -249,7 +253,7 @@ class ImuEngine:
         self._n_far_back = 0
         self._t_ahead = None
         self._t_const = 0.0
-        self._t_last = -math.inf
+        self.latest_stamp_s = -math.inf
         self._stateless_q = None
         self._stateless_heading = False
         self._clear_heading_offset()
@@ -262,7 +266,7 @@ class ImuEngine:
         self._t_ahead = None
         f.reset()
         self._t_const = 0.0
-        self._t_last = -math.inf
+        self.latest_stamp_s = -math.inf
         self._stateless_q = None
         self._stateless_heading = False
         self._clear_heading_offset()
@@ -329,7 +333,7 @@ class ImuEngine:
                 gx, gy, gz = gyr
                 cf.gyro_clipped_raw = gx >= clip or gx <= -clip or gy >= clip or gy <= -clip or gz >= clip or gz <= -clip
             gyr, acc = self._to_output_frame(gyr, acc)
-        t_last = self._t_last
+        t_last = self.latest_stamp_s
         if t_s - t_last > JUMP_AHEAD_S and t_last > -math.inf and t_s - t_last > self.filter.params.max_dt_s:
             t_s = self._far_ahead(t_s, t_last)
         elif self._t_ahead is not None:
@@ -345,11 +349,11 @@ class ImuEngine:
                 self.n_resets_jump += 1
                 # The first stamp of the new timeline, as a fresh engine's first sample (a magnetometer sample that
                 # comes after it is measured against it: latest_stamp_s).
-                self._t_last = t_s
+                self.latest_stamp_s = t_s
         else:
             self._n_far_back = 0
-            if t_s > self._t_last:
-                self._t_last = t_s
+            if t_s > self.latest_stamp_s:
+                self.latest_stamp_s = t_s
         mag = self.pairer.get(t_s)
         if t_s > self._hint_until:  # (by header stamps, as the hint's, before constant_dt's clock replaces them)
             self._expire_hint()
@@ -390,7 +394,8 @@ class ImuEngine:
         elif self.stale_share:
             # Exactly 0 again once negligible, so the common path skips this.
             self.stale_share = s if (s := self.stale_share * (1.0 - STALE_SHARE_GAIN)) > 1e-6 else 0.0
-        return self._output(f.quaternion, status, gyr, acc)
+        q, variance, bias = f.estimate()
+        return self._output(q, status, gyr, acc, variance, bias)
 
     def on_chunk(  # noqa: C901 - the bulk path's per-sample loop, one function on purpose (a call per sample costs)
         self, is_imu: Sequence[bool], t_s: Sequence[float], v1: Columns, v2: Columns, observe: bool = False,
@@ -433,7 +438,7 @@ class ImuEngine:
         var_fixed = (sd * sd,) * 3 if sd > 0.0 else None
         turn = self._turn
         gated = hasattr(f, 'mag_disturbed')
-        t_last = self._t_last
+        t_last = self.latest_stamp_s
         # The common path holds while no lone far-ahead stamp waits and no far-behind samples are counted.
         clean = self._t_ahead is None and self._n_far_back == 0
         k = -1  # index among the chunk's IMU samples
@@ -458,12 +463,12 @@ class ImuEngine:
                 # on_imu itself: the first sample, a jump ahead or back, or what follows one
                 n_slow += 1
                 k_slow = k
-                self._t_last = t_last  # (kept in locals by the written-out steps)
+                self.latest_stamp_s = t_last  # (kept in locals by the written-out steps)
                 pairer._t_in_use, pairer._field_in_use = t_in_use, field
                 out = self.on_imu(t, (x1, y1, z1), (x2, y2, z2))
                 f = self.filter
                 update = f._update_floats
-                t_last = self._t_last
+                t_last = self.latest_stamp_s
                 t_in_use, field = pairer._t_in_use, pairer._field_in_use
                 pend = pairer._pending
                 push, popleft = pend.append, pend.popleft
@@ -522,20 +527,20 @@ class ImuEngine:
             if not answers:
                 continue
             add_k(k)
-            q = f.quaternion
+            q, variance, bias = f.estimate()
             if turn is not None:
                 tc, ts = turn
                 qw, qx, qy, qz = q
                 q = (tc * qw - ts * qz, tc * qx - ts * qy, tc * qy + ts * qx, tc * qz + ts * qw)
             add_q(q)
-            add_v(var_fixed or f.orientation_variance)
-            add_b(f.gyro_bias)
+            add_v(var_fixed or variance)
+            add_b(bias)
         # What the written-out steps leave on the engine (counters, latest stamp, clock, pairing).
         n_fast = k + 1 - n_slow
         self.n_in += n_fast
         self.n_out += n_fast - n_fast_skipped
         last_fast = k_slow != k  # (False without IMU samples: both -1)
-        self._t_last = t_last
+        self.latest_stamp_s = t_last
         pairer._t_in_use, pairer._field_in_use = t_in_use, field
         if last_fast:
             self.clock_s = t_clock
@@ -578,14 +583,16 @@ class ImuEngine:
 
     def _output(
         self, q: tuple[float, float, float, float], status: int, gyr: Vec3, acc: Vec3,
-        variance: Vec3 | None = None,
+        variance: Vec3 | None = None, bias: Vec3 | None = None,
     ) -> Output:
         """Shape the orientation ``q`` ([w, x, y, z], world frame) and the sample into an :class:`Output`; the
-        covariance is ``orientation_stddev`` if set, else ``variance`` if given, else the filter's."""
+        covariance is ``orientation_stddev`` if set, else ``variance`` if given, else the filter's; ``bias`` is the
+        filter's if not given."""
         f = self.filter
         sd = self._stddev
         vr, vp, vy = (sd * sd,) * 3 if sd > 0.0 else variance or f.orientation_variance
-        bias = f.gyro_bias
+        if bias is None:
+            bias = f.gyro_bias
         rate = None
         if self._corrected_rate:
             rate = (gyr[0] - bias[0], gyr[1] - bias[1], gyr[2] - bias[2])
@@ -786,14 +793,6 @@ class ImuEngine:
         return self.n_out
 
     @property
-    def latest_stamp_s(self) -> float:
-        """Latest IMU stamp processed on the current timeline, s (-inf if none since the start or a reset): stamps
-        far behind it do not count until the timeline restarts on them (then the restarting stamp is the latest), nor
-        does a lone stamp far ahead of it. The pairer has handed out every magnetometer sample up to it (+ its
-        tolerance)."""
-        return self._t_last
-
-    @property
     def n_no_acc(self) -> int:
         """Samples propagated gyro-only (unusable accelerometer)."""
         return self._no_acc_before + self.filter.n_no_acc
@@ -933,7 +932,7 @@ class ImuEngine:
         the IMU stamps reach it (a clock other than the IMU's: the adapter warns)."""
         self.filter.still_hint = still
         self._hint_until = t_s + timeout_s
-        return self._t_last - t_s if self._t_last > -math.inf else math.nan
+        return self.latest_stamp_s - t_s if self.latest_stamp_s > -math.inf else math.nan
 
     def _expire_hint(self) -> None:
         self.filter.still_hint = None

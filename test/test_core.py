@@ -314,6 +314,50 @@ def test_jittered_stamps_reuse_the_gains_of_their_bin(monkeypatch):
     assert calls['sample'] < 210 and calls['block'] < 100, calls
 
 
+def test_a_period_on_a_bin_edge_takes_its_gains_without_a_lookup_per_sample(monkeypatch):
+    """400 Hz stamps near 1.7e9 s: the period (2.5 ms) sits on the edge of a 0.1 % bin, and the stamps' float
+    rounding sends about every other sample to the neighbouring bin. The two bins' gains are swapped without the
+    cache's lookup (measured: 2 lookups for 4000 samples; without the swap 1921), and each sample still gets its own
+    bin's gains."""
+    calls = []
+    lookup = QuaternionCcf._coefficients
+
+    def counted(self, dt):
+        calls.append(dt)
+        return lookup(self, dt)
+
+    f = QuaternionCcf()
+    monkeypatch.setattr(QuaternionCcf, '_coefficients', counted)
+    t = 1_700_000_000.0 + np.arange(4000) * 0.0025
+    dts = np.diff(t)
+    assert 0.2 < np.mean(_bin_of(dts) != _bin_of(np.full(1, 0.0025))[0]) < 0.8  # the case: both bins visited
+    for k, tk in enumerate(t.tolist()):
+        f.update(tk, (0.01, -0.02, 0.005), (0.0, 0.3, 9.8), (2e-5, 0.0, -4e-5))
+        if k:
+            assert f._coef is lookup(f, float(dts[k - 1])), k  # this sample's bin (looked up uncounted)
+    assert len(calls) <= 4, len(calls)
+
+
+@pytest.mark.parametrize('world_frame', ['enu', 'ned'])
+def test_estimate_is_the_three_properties_for_every_filter(world_frame):
+    """OrientationFilter.estimate() (the engine's per-sample read; the CCF writes it out) equals quaternion,
+    orientation_variance and gyro_bias, through a start, a magnetometer's arrival and a turn, for every filter."""
+    from ccf_ros.core.registry import FILTERS
+
+    sim = generate(8.0, 100.0, seed=2)
+    for kind, formulation in FILTERS:
+        f = make_filter({'filter': kind, 'formulation': formulation, 'world_frame': world_frame})
+        for k in range(len(sim.t_s)):
+            f.update(float(sim.t_s[k]), tuple(sim.gyr[k]), tuple(sim.acc[k]), tuple(sim.mag[k]) if k > 300 else None)
+            if k % 50 == 0 or k == len(sim.t_s) - 1:
+                assert f.estimate() == (f.quaternion, f.orientation_variance, f.gyro_bias), (kind, formulation, k)
+
+
+def _bin_of(dt: np.ndarray) -> np.ndarray:
+    """The 0.1 % bins of the core's gain cache (discretisation._bin), vectorized."""
+    return np.round(np.log(dt) * 1000.0)
+
+
 def test_a_drive_off_is_not_learnt_as_bias():
     """After a rest (the bias known), a robot drives off at 1 m/s² for 10 s while weaving (yaw ±30°/s): the
     accelerometer tilts by 5.8° while the gyro says no tilt. The NCF does not use observations beyond 3 sigma of what

@@ -47,7 +47,7 @@ def _stream(mag_offset_t: tuple[float, float, float] | None = None, duration_s: 
 def _state(e: ImuEngine) -> tuple:
     f = e.filter
     return (e.n_in, e.n_out, e.counts(), e.n_answered_stale, e.stale_share, e.n_resets_jump, e.clock_s, e.paired_mag,
-            e._t_last, e._t_ahead, e._n_far_back, f.quaternion, f.gyro_bias, f.orientation_variance, f.initialized,
+            e.latest_stamp_s, e._t_ahead, e._n_far_back, f.quaternion, f.gyro_bias, f.orientation_variance, f.initialized,
             e.hard_iron_state())
 
 

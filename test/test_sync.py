@@ -394,6 +394,28 @@ def test_input_stats_rate_and_messages_lost_from_stamp_holes():
 
 
 
+def test_input_stats_read_at_any_sample_as_at_the_end():
+    """The node hands samples over in batches (one list append per message): the statistics read after every
+    sample, after some, or only at the end are the same, losses and their times included."""
+    rng = np.random.default_rng(4)
+    t = np.cumsum(np.where(rng.random(3000) < 0.01, 0.0025 * rng.integers(2, 9, 3000),
+                           0.0025 * (1.0 + rng.normal(0.0, 0.05, 3000))))
+    now = 50.0 + np.cumsum(0.0025 * (1.0 + rng.normal(0.0, 0.2, 3000)))
+    every, some, end = InputStats(), InputStats(), InputStats()
+    seen = []
+    for i, (x, a) in enumerate(zip(t.tolist(), now.tolist(), strict=True)):
+        for st in (every, some, end):
+            st.on_imu(x, a)
+        seen.append((every.n_imu, every.last_imu, every.n_lost, every.last_loss))
+        if i % 97 == 0:
+            assert (some.n_lost, some.last_loss, some.period_s) == (every.n_lost, every.last_loss, every.period_s)
+    assert seen[-1] == (3000, now[-1], end.n_lost, end.last_loss) and end.n_imu == 3000
+    assert end.n_lost == every.n_lost > 20 and end.period_s == every.period_s == some.period_s
+    assert end.rate_hz(now[-1]) == every.rate_hz(now[-1]) == pytest.approx(400.0, rel=0.05)
+    # A count and the time of the latest arrival are exact at every sample, before the batch is taken in.
+    assert [s[0] for s in seen] == list(range(1, 3001)) and [s[1] for s in seen] == now.tolist()
+
+
 def test_input_stats_take_jitter_bursts_and_a_slower_rate_for_no_losses():
     """Stamps with jitter (a driver that stamps on arrival) or in bursts (a FIFO read) are not holes; real holes
     still are, one by one and under a lasting loss; a switch to a slower rate costs a few false counts, not one per

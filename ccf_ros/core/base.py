@@ -22,7 +22,7 @@ from enum import IntEnum
 from typing import NamedTuple
 
 from .fields import param as param  # re-exported: the params dataclasses define their fields with it
-from .quaternion import WORLD_FRAMES, quat_mul_scalar, rpy_of
+from .quaternion import WORLD_FRAMES, Quat, quat_mul_scalar, rpy_of
 
 
 class Status(IntEnum):
@@ -358,6 +358,11 @@ class OrientationFilter(ABC):
         if self._identity_frame:
             return self._q
         return quat_mul_scalar(self._frame, self._q)
+
+    def estimate(self) -> tuple[Quat, tuple[float, float, float], tuple[float, float, float]]:
+        """:attr:`quaternion`, :attr:`orientation_variance` and :attr:`gyro_bias` in one call: what the engine reads
+        after every sample (one call instead of three)."""
+        return self.quaternion, self.orientation_variance, self.gyro_bias
 
     @property
     def flags(self) -> FilterFlags:

@@ -83,7 +83,7 @@ from .compat import (
 )
 from .debug import raw_rpy
 from .diagnostics import Diagnostics, diagnostics
-from .stats import InputStats
+from .stats import PENDING_MAX, InputStats
 from .sync import HOLD_S, ImuMagSync
 
 #: A magnetometer stamp up to this much after an IMU stamp pairs with it (MagPairer's default tolerance_s), s.
@@ -669,7 +669,11 @@ class CcfNode(Node):
             self._warn_throttled(f'unreadable IMU message ({len(data)} bytes) dropped: {err}')
             return
         t, _, src, off, gyr, acc = item
-        self.stats.on_imu(t, now)
+        stats = self.stats
+        pending = stats.pending  # InputStats.on_imu written out (changes together with it)
+        pending.append((t, now))
+        if len(pending) >= PENDING_MAX:
+            stats.catch_up()
         sync = self.sync
         if not sync.on_imu(t, item, now):
             if len(sync) == 1:

@@ -7,7 +7,7 @@ from math import atan2, cos, sin, sqrt
 from typing import NamedTuple
 
 from ..base import CommonParams
-from ..quaternion import Quat, level_quat, quat_from_acc_mag_scalar, relevel
+from ..quaternion import Quat, level_quat, quat_from_acc_mag_scalar, quat_mul_scalar, relevel
 from .bias import BiasKalman
 from .discretisation import _BlockCoefficients, _cached, _Coefficients
 from .mag_gate import MagGate
@@ -99,6 +99,7 @@ class QuaternionCcf(MagGate):
         '_bias_rested',
         '_coef',
         '_coef_cache',
+        '_coef_prev',
         '_gyro_lp',
         '_head_var',
         '_heading_known',
@@ -147,14 +148,14 @@ class QuaternionCcf(MagGate):
             self.gyro_clipped_raw = False
             # The per-sample coefficients hold the filter's own threshold: the same bin, rebuilt.
             self._coef_cache.clear()
-            self._coef = self._coefficients(math.sqrt(self._coef.dt_lo * self._coef.dt_hi))
+            self._coef = self._coef_prev = self._coefficients(math.sqrt(self._coef.dt_lo * self._coef.dt_hi))
 
     def _reset_state(self) -> None:
         # (Counts are ints among the floats.)
         self._x: tuple[float, ...] = tuple(CcfState())
         self._coef_cache: dict[int, _Coefficients] = {}
         self._bcoef_cache: dict[int, _BlockCoefficients] = {}
-        self._coef = self._coefficients(0.01)
+        self._coef = self._coef_prev = self._coefficients(0.01)
         self._bcoef = self._block_coefficients(BIAS_UPDATE_PERIOD_S)
         self._gyro_lp = (0.0, 0.0, 0.0)
         self._acc_lp = (0.0, 0.0, 0.0)
@@ -183,7 +184,7 @@ class QuaternionCcf(MagGate):
         self._coef_cache = {}
         self._bcoef_cache = {}
         # The bins' middles: the same bins as before the change.
-        self._coef = self._coefficients(math.sqrt(self._coef.dt_lo * self._coef.dt_hi))
+        self._coef = self._coef_prev = self._coefficients(math.sqrt(self._coef.dt_lo * self._coef.dt_hi))
         self._bcoef = self._block_coefficients(math.sqrt(self._bcoef.t_lo * self._bcoef.t_hi))
         if not self.params.rest_bias:
             self.at_rest = False
@@ -250,7 +251,11 @@ class QuaternionCcf(MagGate):
         per-block updates (bias, field consistency) are calls."""
         c = self._coef
         if not c.dt_lo <= dt <= c.dt_hi:
-            c = self._coef = self._coefficients(dt)
+            # A period on a bin's edge (400 Hz is one) alternates between two bins with the stamps' rounding: the
+            # previous bin is tried before the cache's lookup (the same coefficients, without its calls).
+            p = self._coef_prev
+            self._coef_prev = c
+            c = self._coef = p if p.dt_lo <= dt <= p.dt_hi else self._coefficients(dt)
         clip = c.clip  # (inf with raw_clip_check: the caller's verdict is gyro_clipped_raw)
         # (inf also without a known range, the default: then the six comparisons are skipped; the gyro is finite)
         if ((clip != _INF and (gx >= clip or gx <= -clip or gy >= clip or gy <= -clip or gz >= clip or gz <= -clip))
@@ -669,6 +674,15 @@ class QuaternionCcf(MagGate):
         vi = self._incl_var + self._var_incl
         vh = self._var_head + (self._head_var if self._heading_known else 0.0)
         return (vi, vi, vh)
+
+    def estimate(self) -> tuple[Quat, tuple[float, float, float], tuple[float, float, float]]:
+        """:attr:`quaternion`, :attr:`orientation_variance` and :attr:`gyro_bias` in one call (the three properties'
+        steps written out: the engine reads them after every sample; they change together, tested)."""
+        x = self._x
+        vi = self._incl_var + self._var_incl
+        vh = self._var_head + (self._head_var if self._heading_known else 0.0)
+        return (self._q if self._identity_frame else quat_mul_scalar(self._frame, self._q), (vi, vi, vh),
+                (x[_I_BIAS], x[_I_BIAS + 1], x[_I_BIAS + 2]))
 
     def set_gyro_bias(self, bias_rad_s: tuple[float, float, float], sigma_rad_s: float) -> bool:
         """Set the bias state (rad/s, body) and its covariance to ``diag(sigma_rad_s²)`` (rad/s): the NCF refines it
