@@ -123,7 +123,7 @@ def _split_steps() -> None:
         (ImuMagSync, 'on_mag', '  sync.on_mag'),
         (CcfNode, '_imu', 'IMU message (_imu, whole, with rclpy publish)'),
         (FastCdrPath, 'read_imu', '  read_imu (CDR bytes)'),
-        (InputStats, 'on_imu', '  stats.on_imu (rate, losses)'),
+        (InputStats, 'catch_up', '  stats.catch_up (rate, losses: per 32 IMU messages)'),
         (ImuMagSync, 'on_imu', '  sync.on_imu'),
         (ImuEngine, 'on_imu', '  engine.on_imu'),
         (MagPairer, 'get', '    pairer.get'),

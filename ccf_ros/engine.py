@@ -143,8 +143,8 @@ class ImuEngine:
         #: share of the latest ~100 answers given with a held orientation (running mean; 0 at the start)
         self.stale_share = 0.0
         self._t_const = 0.0
-        #: latest IMU stamp processed on the current timeline, s (-inf if none since the start or a reset; read-only
-        #: for the caller: an attribute, as the node reads it per magnetometer message): stamps far behind it do not
+        #: latest IMU stamp processed on the current timeline, s (-inf if none since the start or a reset; not to be set
+        #: by the caller: an attribute, as the node reads it per magnetometer message): stamps far behind it do not
         #: count until the timeline restarts on them (then the restarting stamp is the latest), nor does a lone stamp
         #: far ahead of it. The pairer has handed out every magnetometer sample up to it (+ its tolerance).
         self.latest_stamp_s = -math.inf

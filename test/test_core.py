@@ -338,6 +338,37 @@ def test_a_period_on_a_bin_edge_takes_its_gains_without_a_lookup_per_sample(monk
     assert len(calls) <= 4, len(calls)
 
 
+def test_a_period_on_a_bin_edge_takes_new_gains_after_a_change():
+    """The swapped-in neighbouring bin (previous paragraph) is never a stale one: after set_params (new time
+    constants, a gyro range) and after raw_clip_check toggles, mid-stream on bin-alternating 400 Hz stamps, every later
+    sample runs with the gains the cache builds for its own period under the settings of the moment."""
+    from ccf_ros.core.ccf.discretisation import _bin, _Coefficients
+
+    f = QuaternionCcf()
+    lookup = QuaternionCcf._coefficients
+    t = (1_700_000_000.0 + np.arange(1200) * 0.0025).tolist()
+    changes = {
+        300: lambda: f.set_params(dataclasses.replace(f.params, tau_acc_s=2.0 * f.params.tau_acc_s)),
+        500: lambda: f.set_params(dataclasses.replace(f.params, gyro_range_rad_s=0.5)),
+        700: lambda: setattr(f, 'raw_clip_check', True),
+        900: lambda: setattr(f, 'raw_clip_check', False),
+    }
+    before = {}
+    for k, tk in enumerate(t):
+        if k in changes:
+            before[k] = (f._coef.k_acc, f._coef.clip)
+            changes[k]()
+        f.update(tk, (0.01, -0.02, 0.005), (0.0, 0.3, 9.8), (2e-5, 0.0, -4e-5))
+        if k:
+            c = f._coef
+            fresh = _Coefficients.of(f.params, _bin(t[k] - t[k - 1]), not f.raw_clip_check)
+            assert c is lookup(f, t[k] - t[k - 1]), k
+            assert (c.dt_lo, c.dt_hi, c.k_acc, c.clip) == (fresh.dt_lo, fresh.dt_hi, fresh.k_acc, fresh.clip), k
+    # (The changes did change the gains: the test would see a stale bin.)
+    assert before[300][0] != f._coef.k_acc and before[500][1] == math.inf
+    assert math.isfinite(f._coef.clip)
+
+
 @pytest.mark.parametrize('world_frame', ['enu', 'ned'])
 def test_estimate_is_the_three_properties_for_every_filter(world_frame):
     """OrientationFilter.estimate() (the engine's per-sample read; the CCF writes it out) equals quaternion,

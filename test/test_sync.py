@@ -416,6 +416,29 @@ def test_input_stats_read_at_any_sample_as_at_the_end():
     assert [s[0] for s in seen] == list(range(1, 3001)) and [s[1] for s in seen] == now.tolist()
 
 
+def test_input_stats_read_mid_batch_are_the_arrivals_so_far():
+    """Read between two batches (no catch_up by the caller), each figure is that of the samples so far: a hole is
+    counted, with its arrival time, by the sample right after it; the rate is that of the arrivals of the last 2 s.
+    (One InputStats per figure: a read of one figure must not be what brings another up to date.)"""
+    lost, loss_at, rate, period = InputStats(), InputStats(), InputStats(), InputStats()
+    stamps = [1_000.0 + k * 0.0025 for k in range(2000) if not 1200 <= k < 1205]  # 400 Hz, 5 samples lost once
+
+    def arrival(i: int) -> float:
+        return 7.0 + i * 0.003 + 1e-6 * i * i  # slowing down: the rate depends on which arrivals are counted
+
+    for i, x in enumerate(stamps):
+        now = arrival(i)
+        for st in (lost, loss_at, rate, period):
+            st.on_imu(x, now)
+        if i % 37 == 5:
+            window = [arrival(j) for j in range(i + 1) if now - arrival(j) <= 2.0]
+            assert rate.rate_hz(now) == pytest.approx((len(window) - 1) / (window[-1] - window[0]), rel=1e-12), i
+        assert lost.n_lost == (5 if i >= 1200 else 0), i
+        assert loss_at.last_loss == (arrival(1200) if i >= 1200 else -math.inf), i
+        if i == 20:  # (the first batch of 32 not taken in yet; the period is known from 16 intervals on)
+            assert period.period_s == pytest.approx(0.0025, rel=1e-9)
+
+
 def test_input_stats_take_jitter_bursts_and_a_slower_rate_for_no_losses():
     """Stamps with jitter (a driver that stamps on arrival) or in bursts (a FIFO read) are not holes; real holes
     still are, one by one and under a lasting loss; a switch to a slower rate costs a few false counts, not one per
