@@ -339,9 +339,10 @@ def test_a_period_on_a_bin_edge_takes_its_gains_without_a_lookup_per_sample(monk
 
 
 def test_a_period_on_a_bin_edge_takes_new_gains_after_a_change():
-    """The swapped-in neighbouring bin (previous paragraph) is never a stale one: after set_params (new time
-    constants, a gyro range) and after raw_clip_check toggles, mid-stream on bin-alternating 400 Hz stamps, every later
-    sample runs with the gains the cache builds for its own period under the settings of the moment."""
+    """The swapped-in neighbouring bin (test_a_period_on_a_bin_edge_takes_its_gains_without_a_lookup_per_sample) is
+    never a stale one: after set_params (new time constants, a gyro range) and after raw_clip_check toggles,
+    mid-stream on bin-alternating 400 Hz stamps, every later sample runs with the gains the cache builds for its own
+    period under the settings of the moment."""
     from ccf_ros.core.ccf.discretisation import _bin, _Coefficients
 
     f = QuaternionCcf()

@@ -589,7 +589,7 @@ def test_ccf_play_waits_for_the_node_so_its_first_samples_arrive(context, sim_ba
         # Every message reached the node, the first included (the recorder here may drop some of the answers).
         got = (node.stats.n_imu, node.stats.n_mag)
         first = h.out[0].header.stamp if h.out else None
-        assert got == (n_imu, n_mag), f'{got}; last stamp in {node.engine.latest_stamp_s}, first answer {first}'
+        assert got == (n_imu, n_mag), f'{got}; engine at stamp {node.engine.latest_stamp_s}, first answer {first}'
         assert h.out and h.out[0].header.stamp == first_t
     finally:
         if proc.poll() is None:
