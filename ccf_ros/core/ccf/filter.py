@@ -146,9 +146,7 @@ class QuaternionCcf(MagGate):
         if on != self._raw_clip:
             self._raw_clip = on
             self.gyro_clipped_raw = False
-            # The per-sample coefficients hold the filter's own threshold: the same bin, rebuilt.
-            self._coef_cache.clear()
-            self._coef = self._coef_prev = self._coefficients(math.sqrt(self._coef.dt_lo * self._coef.dt_hi))
+            self._rebuild_coefficients()  # (they hold the filter's own threshold)
 
     def _reset_state(self) -> None:
         # (Counts are ints among the floats.)
@@ -180,11 +178,16 @@ class QuaternionCcf(MagGate):
         """The bias update's constants for a block spanning ``t`` s (> 0)."""
         return _cached(self._bcoef_cache, t, lambda key: _BlockCoefficients.of(self.params, key))
 
-    def _params_changed(self) -> None:
+    def _rebuild_coefficients(self) -> None:
+        """The per-sample coefficients built again (the cache and the previous bin's forgotten), in the same bin: at
+        its middle."""
         self._coef_cache = {}
-        self._bcoef_cache = {}
-        # The bins' middles: the same bins as before the change.
         self._coef = self._coef_prev = self._coefficients(math.sqrt(self._coef.dt_lo * self._coef.dt_hi))
+
+    def _params_changed(self) -> None:
+        self._rebuild_coefficients()
+        self._bcoef_cache = {}
+        # The bin's middle: the same bin as before the change.
         self._bcoef = self._block_coefficients(math.sqrt(self._bcoef.t_lo * self._bcoef.t_hi))
         if not self.params.rest_bias:
             self.at_rest = False
