@@ -25,6 +25,11 @@ class MagPairer:
         tolerance_s: a magnetometer stamp up to this much after the IMU stamp still counts (clock jitter), s.
     """
 
+    #: Most samples queued, oldest pushed out first. A queue holds the samples ahead of the IMU stream (a late one
+    #: is used at the next IMU sample or never): 4096 is 14 s of a 286 Hz magnetometer, 4 s at 1 kHz, for an IMU
+    #: topic delivered that far behind (the node takes what DDS delivers; 256 was 0.9 s at 286 Hz), ~1 MB at most.
+    QUEUE_MAX = 4096
+
     def __init__(self, timeout_s: float = 0.5, tolerance_s: float = 1e-4) -> None:
         if not (math.isfinite(timeout_s) and timeout_s > 0):
             raise ValueError(f'mag timeout_s must be a finite number > 0, got {timeout_s!r}')
@@ -40,7 +45,7 @@ class MagPairer:
         """Forget all magnetometer samples."""
         self._t_in_use = -math.inf
         self._field_in_use: tuple[float, float, float] | None = None
-        self._pending: deque[tuple[float, tuple[float, float, float]]] = deque(maxlen=256)
+        self._pending: deque[tuple[float, tuple[float, float, float]]] = deque(maxlen=self.QUEUE_MAX)
 
     def restart(self, t_s: float, horizon_s: float) -> None:
         """The clock jumped back to ``t_s`` (bag loop, simulation reset): forget the sample in use and the pending

@@ -577,32 +577,34 @@ class CcfNode(Node):
         self._drain()
 
     def _on_imu_raw(self, data: bytes) -> None:
-        # A magnetometer sample that arrived since the executor looked goes first (it may be this one's).
-        self._take_mags()
         self._imu(data)
         self._drain()
 
-    def _take_mags(self) -> None:
+    def _take_mags(self, t: float) -> None:
+        """Take the queued magnetometer samples up to the IMU stamp ``t`` (s), and the first one after it.
+
+        Those that arrived since the executor looked go first (one may be this IMU sample's). Only up to its stamp:
+        a backlog (the magnetometer topic stalled under load, then its late samples and those ahead came at once)
+        taken whole would fill the pairer's queue with samples ahead and push out the ones the next IMU samples use.
+        The rest waits in the reader queue (``qos_depth``) until an IMU stamp reaches it."""
+        limit = t + MAG_TOLERANCE_S
         take_mag = self._take_mag
         mag = take_mag()
-        while mag is not None:
-            self._mag(mag)
+        while mag is not None and not self._mag(mag) > limit:
             mag = take_mag()
 
     def _drain(self) -> None:
-        """Take the messages already queued, magnetometer first, in this callback.
+        """Take the IMU messages already queued in this callback, each after the magnetometer samples up to its
+        stamp (:meth:`_take_mags`: they pair as in bag order).
 
         Every executor cycle rebuilds the wait set in Python (about as costly as everything else per message); under
-        load, when messages queue up, this serves them in one cycle instead of one cycle each. Magnetometer samples
-        taken ahead of the IMU wait in the pairer for their stamp, so taking them first pairs as in bag order.
+        load, when messages queue up, this serves them in one cycle instead of one cycle each.
         """
         take_imu = self._take_imu
         for _ in range(self.DRAIN_MAX):
             imu = take_imu()
             if imu is None:
                 return  # (no magnetometer take first: at low rates every take here finds nothing, and costs)
-            # Magnetometer samples that arrived by now go first (as if the IMU sample had been taken after them).
-            self._take_mags()
             self._imu(imu)
 
     @staticmethod
@@ -617,13 +619,14 @@ class CcfNode(Node):
 
         return take
 
-    def _mag(self, data: bytes) -> None:
+    def _mag(self, data: bytes) -> float:
+        """A magnetometer message: to the engine and the hold. Returns its stamp, s (-inf if unreadable)."""
         try:
             t, field = (self._fast if data[:2] == LITTLE_ENDIAN_CDR else self._slow).read_mag(data)
         except Exception as err:  # a truncated or foreign payload must not stop the node
             self.stats.n_unreadable += 1
             self._warn_throttled(f'unreadable magnetometer message ({len(data)} bytes) dropped: {err}')
-            return
+            return -math.inf
         now = time.monotonic()
         if t <= self.engine.latest_stamp_s + MAG_TOLERANCE_S:
             self._mag_late(t)
@@ -637,6 +640,7 @@ class CcfNode(Node):
         released = self.sync.on_mag(t, now)
         if released:
             self._answer_all(released)
+        return t
 
     def _forget_mag_clock(self) -> None:
         """Forget the magnetometer's timeline (a reset, a cleanup): as at the start."""
@@ -669,6 +673,11 @@ class CcfNode(Node):
             self._warn_throttled(f'unreadable IMU message ({len(data)} bytes) dropped: {err}')
             return
         t, _, src, off, gyr, acc = item
+        # The magnetometer samples queued up to this stamp go first; not when one at or after it (on this timeline:
+        # within a second) was taken already, as those queued are later (in lock-step the executor took this
+        # sample's own, and a take would find nothing).
+        if not t <= self._mag_prev_t <= t + JUMP_BACK_RESET_S:
+            self._take_mags(t)
         stats = self.stats
         pending = stats.pending  # InputStats.on_imu written out (changes together with it)
         pending.append((t, now))
@@ -713,7 +722,7 @@ class CcfNode(Node):
             # executors.py, _wait_for_ready_callbacks): after the process was descheduled for more than HOLD_S, this
             # timer runs while the magnetometer sample a held IMU sample waits for is already in the reader queue.
             # Taken first, it pairs as in replay; only what is still missing times out.
-            self._take_mags()
+            self._take_mags(self.sync.newest_held_s)
         now = time.monotonic()
         self._answer_all(self.sync.expire(now))
         if self._hint_topic and self.sub_hint is None:

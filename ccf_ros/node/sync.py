@@ -233,6 +233,11 @@ class ImuMagSync(Generic[T]):
         return bool(self._held)
 
     @property
+    def newest_held_s(self) -> float:
+        """Stamp of the newest held sample, s (``-inf`` if nothing is held)."""
+        return self._held[-1][0] if self._held else -math.inf
+
+    @property
     def deadline(self) -> float | None:
         """``now`` at which :meth:`expire` releases the held samples, or None if nothing is held."""
         return self._held[0][2] + self.hold_s if self._held else None
