@@ -267,8 +267,9 @@ class CcfNode(Node):
         self.stats = InputStats()
         self._noticed: set[str] = set()
         self._last_bias_t = -math.inf
-        #: the magnetometer's latest stamp, s: one far behind it is the magnetometer's clock jumping back
-        self._mag_prev_t = -math.inf
+        #: the magnetometer's latest stamp, s (one far behind it is the magnetometer's clock jumping back), and the
+        #: one before it (_take_mags)
+        self._mag_prev_t = self._mag_prev2_t = -math.inf
         #: the engine's timeline restarts when the magnetometer's clock jumped back ahead of the IMU's (-1: not now)
         self._mag_clock_back = -1
         #: when each kind of throttled warning was last logged (time.monotonic(), s)
@@ -581,17 +582,21 @@ class CcfNode(Node):
         self._drain()
 
     def _take_mags(self, t: float) -> None:
-        """Take the queued magnetometer samples up to the IMU stamp ``t`` (s), and the first one after it.
+        """Take the queued magnetometer samples up to the IMU stamp ``t`` (s): until the two latest taken are after it.
 
         Those that arrived since the executor looked go first (one may be this IMU sample's). Only up to its stamp:
         a backlog (the magnetometer topic stalled under load, then its late samples and those ahead came at once)
-        taken whole would fill the pairer's queue with samples ahead and push out the ones the next IMU samples use.
-        The rest waits in the reader queue (``qos_depth``) until an IMU stamp reaches it."""
+        taken whole could fill the pairer's queue with samples ahead and push out those the next IMU samples use.
+        Two after it, not one: a lone stamp ahead (a glitch of the magnetometer's clock) may have samples up to ``t``
+        behind it. The rest stays in the reader queue for the next IMU samples (and the executor's magnetometer
+        callback, one per wake-up)."""
         limit = t + MAG_TOLERANCE_S
         take_mag = self._take_mag
-        mag = take_mag()
-        while mag is not None and not self._mag(mag) > limit:
+        while not (self._mag_prev_t > limit and self._mag_prev2_t > limit):
             mag = take_mag()
+            if mag is None:
+                return
+            self._mag(mag)
 
     def _drain(self) -> None:
         """Take the IMU messages already queued in this callback, each after the magnetometer samples up to its
@@ -632,6 +637,7 @@ class CcfNode(Node):
             self._mag_late(t)
         elif self._mag_clock_back >= 0:
             self._mag_clock_back = -1  # ahead of the IMU's stamps: the magnetometer is on the IMU's timeline again
+        self._mag_prev2_t = self._mag_prev_t
         self._mag_prev_t = t
         self.engine.on_mag(t, field)
         stats = self.stats
@@ -644,7 +650,7 @@ class CcfNode(Node):
 
     def _forget_mag_clock(self) -> None:
         """Forget the magnetometer's timeline (a reset, a cleanup): as at the start."""
-        self._mag_prev_t = -math.inf
+        self._mag_prev_t = self._mag_prev2_t = -math.inf
         self._mag_clock_back = -1
 
     def _mag_late(self, t: float) -> None:
@@ -673,10 +679,9 @@ class CcfNode(Node):
             self._warn_throttled(f'unreadable IMU message ({len(data)} bytes) dropped: {err}')
             return
         t, _, src, off, gyr, acc = item
-        # The magnetometer samples queued up to this stamp go first; not when one at or after it (on this timeline:
-        # within a second) was taken already, as those queued are later (in lock-step the executor took this
-        # sample's own, and a take would find nothing).
-        if not t <= self._mag_prev_t <= t + JUMP_BACK_RESET_S:
+        # The magnetometer samples queued up to this stamp go first; not when the latest one taken has this stamp
+        # (in lock-step the executor took this sample's own: a take would find nothing this sample uses).
+        if not t <= self._mag_prev_t <= t + MAG_TOLERANCE_S:
             self._take_mags(t)
         stats = self.stats
         pending = stats.pending  # InputStats.on_imu written out (changes together with it)

@@ -76,8 +76,8 @@ class ImuMagSync(Generic[T]):
         enabled: False never holds (no magnetometer in use).
     """
 
-    #: recent stamps remembered per topic (a magnetometer may run ahead of, or behind, the IMU: a node that takes
-    #: queued messages magnetometer first may see a few dozen ahead)
+    #: recent stamps remembered per topic (a magnetometer may run ahead of, or behind, the IMU: on its own clock,
+    #: or a few samples ahead when the node serves a backlog)
     WINDOW = 64
 
     def __init__(self, hold_s: float = HOLD_S, lockstep_after: int = LOCKSTEP_AFTER, enabled: bool = True) -> None:
