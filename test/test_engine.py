@@ -269,9 +269,8 @@ def test_a_magnetometer_sample_ahead_of_a_clock_jump_back_is_not_a_stray():
 
 
 def test_a_stray_is_paired_around_alike_in_bag_order_and_magnetometer_first():
-    """A magnetometer backlog taken before its IMU samples (the pairer's side: the node takes those up to the IMU
-    stamp, and past a lone stamp ahead, see test_node's stray test); replay takes them in bag order. With a stray
-    stamp among them, every IMU sample still gets the same magnetometer sample."""
+    """The node takes queued magnetometer samples before an IMU sample (several under a backlog); replay takes them
+    in bag order. With a stray stamp among them, every IMU sample still gets the same magnetometer sample."""
     stamps = [round(10.0 + 0.005 * i, 3) for i in range(40)]
     mag = [15.0 if i == 8 else t for i, t in enumerate(stamps)]
     bag = [m for i in range(40) for m in (('mag', mag[i]), ('imu', stamps[i]))]

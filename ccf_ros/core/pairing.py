@@ -25,9 +25,10 @@ class MagPairer:
         tolerance_s: a magnetometer stamp up to this much after the IMU stamp still counts (clock jitter), s.
     """
 
-    #: Most samples queued, oldest pushed out first. A queue holds the samples ahead of the IMU stream (a late one
-    #: is used at the next IMU sample or never): 4096 is 14 s of a 286 Hz magnetometer, 4 s at 1 kHz, for an IMU
-    #: topic delivered that far behind (the node takes what DDS delivers; 256 was 0.9 s at 286 Hz), ~1 MB at most.
+    #: Most samples queued, oldest pushed out first: the samples ahead of the IMU stream wait here. The node takes a
+    #: reader queue's backlog only while there is :attr:`room`, but its executor hands it every magnetometer sample
+    #: as it comes: an IMU topic delivered this far behind the magnetometer's loses pairs. 4096 is 14 s of a 286 Hz
+    #: magnetometer, 4 s at 1 kHz (256 before: 0.9 s at 286 Hz); ~1 MB at most.
     QUEUE_MAX = 4096
 
     def __init__(self, timeout_s: float = 0.5, tolerance_s: float = 1e-4) -> None:
@@ -96,6 +97,11 @@ class MagPairer:
             tm, m = pending.popleft()
             if tm >= self._t_in_use:
                 self._t_in_use, self._field_in_use = tm, m
+
+    @property
+    def room(self) -> int:
+        """Samples that can be added before the queue pushes out its oldest."""
+        return self.QUEUE_MAX - len(self._pending)
 
     @property
     def stamp_in_use_s(self) -> float:

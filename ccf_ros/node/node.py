@@ -267,9 +267,8 @@ class CcfNode(Node):
         self.stats = InputStats()
         self._noticed: set[str] = set()
         self._last_bias_t = -math.inf
-        #: the magnetometer's latest stamp, s (one far behind it is the magnetometer's clock jumping back), and the
-        #: one before it (_take_mags)
-        self._mag_prev_t = self._mag_prev2_t = -math.inf
+        #: the magnetometer's latest stamp, s: one far behind it is the magnetometer's clock jumping back
+        self._mag_prev_t = -math.inf
         #: the engine's timeline restarts when the magnetometer's clock jumped back ahead of the IMU's (-1: not now)
         self._mag_clock_back = -1
         #: when each kind of throttled warning was last logged (time.monotonic(), s)
@@ -578,38 +577,47 @@ class CcfNode(Node):
         self._drain()
 
     def _on_imu_raw(self, data: bytes) -> None:
+        # A magnetometer sample that arrived since the executor looked goes first (it may be this one's).
+        self._take_mags()
         self._imu(data)
         self._drain()
 
-    def _take_mags(self, t: float) -> None:
-        """Take the queued magnetometer samples up to the IMU stamp ``t`` (s): until the two latest taken are after it.
+    #: Room left in the pairer's queue when the node takes a backlog: for the magnetometer samples the executor
+    #: hands over meanwhile (one per wake-up), which must not push out the oldest either.
+    PAIRER_MARGIN = 64
 
-        Those that arrived since the executor looked go first (one may be this IMU sample's). Only up to its stamp:
-        a backlog (the magnetometer topic stalled under load, then its late samples and those ahead came at once)
-        taken whole could fill the pairer's queue with samples ahead and push out those the next IMU samples use.
-        Two after it, not one: a lone stamp ahead (a glitch of the magnetometer's clock) may have samples up to ``t``
-        behind it. The rest stays in the reader queue for the next IMU samples (and the executor's magnetometer
-        callback, one per wake-up)."""
-        limit = t + MAG_TOLERANCE_S
+    def _take_mags(self) -> None:
+        """Take the queued magnetometer samples, as many as the pairer's queue holds without pushing out its oldest
+        (less :attr:`PAIRER_MARGIN`). A stalled topic's backlog taken whole could push out those the next IMU
+        samples use; the rest stays in the reader queue until the pairer has used some."""
         take_mag = self._take_mag
-        while not (self._mag_prev_t > limit and self._mag_prev2_t > limit):
+        mag = take_mag()
+        if mag is None:
+            return
+        room = self.engine.pairer.room - self.PAIRER_MARGIN
+        while True:
+            self._mag(mag)
+            room -= 1
+            if room <= 0:
+                return
             mag = take_mag()
             if mag is None:
                 return
-            self._mag(mag)
 
     def _drain(self) -> None:
-        """Take the IMU messages already queued in this callback, each after the magnetometer samples up to its
-        stamp (:meth:`_take_mags`: they pair as in bag order).
+        """Take the messages already queued, magnetometer first, in this callback.
 
         Every executor cycle rebuilds the wait set in Python (about as costly as everything else per message); under
-        load, when messages queue up, this serves them in one cycle instead of one cycle each.
+        load, when messages queue up, this serves them in one cycle instead of one cycle each. Magnetometer samples
+        taken ahead of the IMU wait in the pairer for their stamp, so taking them first pairs as in bag order.
         """
         take_imu = self._take_imu
         for _ in range(self.DRAIN_MAX):
             imu = take_imu()
             if imu is None:
                 return  # (no magnetometer take first: at low rates every take here finds nothing, and costs)
+            # Magnetometer samples that arrived by now go first (as if the IMU sample had been taken after them).
+            self._take_mags()
             self._imu(imu)
 
     @staticmethod
@@ -624,20 +632,18 @@ class CcfNode(Node):
 
         return take
 
-    def _mag(self, data: bytes) -> float:
-        """A magnetometer message: to the engine and the hold. Returns its stamp, s (-inf if unreadable)."""
+    def _mag(self, data: bytes) -> None:
         try:
             t, field = (self._fast if data[:2] == LITTLE_ENDIAN_CDR else self._slow).read_mag(data)
         except Exception as err:  # a truncated or foreign payload must not stop the node
             self.stats.n_unreadable += 1
             self._warn_throttled(f'unreadable magnetometer message ({len(data)} bytes) dropped: {err}')
-            return -math.inf
+            return
         now = time.monotonic()
         if t <= self.engine.latest_stamp_s + MAG_TOLERANCE_S:
             self._mag_late(t)
         elif self._mag_clock_back >= 0:
             self._mag_clock_back = -1  # ahead of the IMU's stamps: the magnetometer is on the IMU's timeline again
-        self._mag_prev2_t = self._mag_prev_t
         self._mag_prev_t = t
         self.engine.on_mag(t, field)
         stats = self.stats
@@ -646,11 +652,10 @@ class CcfNode(Node):
         released = self.sync.on_mag(t, now)
         if released:
             self._answer_all(released)
-        return t
 
     def _forget_mag_clock(self) -> None:
         """Forget the magnetometer's timeline (a reset, a cleanup): as at the start."""
-        self._mag_prev_t = self._mag_prev2_t = -math.inf
+        self._mag_prev_t = -math.inf
         self._mag_clock_back = -1
 
     def _mag_late(self, t: float) -> None:
@@ -679,10 +684,6 @@ class CcfNode(Node):
             self._warn_throttled(f'unreadable IMU message ({len(data)} bytes) dropped: {err}')
             return
         t, _, src, off, gyr, acc = item
-        # The magnetometer samples queued up to this stamp go first; not when the latest one taken has this stamp
-        # (in lock-step the executor took this sample's own: a take would find nothing this sample uses).
-        if not t <= self._mag_prev_t <= t + MAG_TOLERANCE_S:
-            self._take_mags(t)
         stats = self.stats
         pending = stats.pending  # InputStats.on_imu written out (changes together with it)
         pending.append((t, now))
@@ -727,7 +728,7 @@ class CcfNode(Node):
             # executors.py, _wait_for_ready_callbacks): after the process was descheduled for more than HOLD_S, this
             # timer runs while the magnetometer sample a held IMU sample waits for is already in the reader queue.
             # Taken first, it pairs as in replay; only what is still missing times out.
-            self._take_mags(self.sync.newest_held_s)
+            self._take_mags()
         now = time.monotonic()
         self._answer_all(self.sync.expire(now))
         if self._hint_topic and self.sub_hint is None:

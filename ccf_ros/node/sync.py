@@ -76,8 +76,8 @@ class ImuMagSync(Generic[T]):
         enabled: False never holds (no magnetometer in use).
     """
 
-    #: recent stamps remembered per topic (a magnetometer may run ahead of, or behind, the IMU: on its own clock,
-    #: or a few samples ahead when the node serves a backlog)
+    #: recent stamps remembered per topic (a magnetometer may run ahead of, or behind, the IMU: a node that takes
+    #: queued messages magnetometer first may see a few dozen ahead)
     WINDOW = 64
 
     def __init__(self, hold_s: float = HOLD_S, lockstep_after: int = LOCKSTEP_AFTER, enabled: bool = True) -> None:
@@ -231,11 +231,6 @@ class ImuMagSync(Generic[T]):
     def holding(self) -> bool:
         """Some samples are held."""
         return bool(self._held)
-
-    @property
-    def newest_held_s(self) -> float:
-        """Stamp of the newest held sample, s (``-inf`` if nothing is held)."""
-        return self._held[-1][0] if self._held else -math.inf
 
     @property
     def deadline(self) -> float | None:
