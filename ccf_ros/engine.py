@@ -428,6 +428,7 @@ class ImuEngine:
         pairer = self.pairer
         pend = pairer._pending
         push, popleft = pend.append, pend.popleft
+        pend_max = pend.maxlen
         tol, timeout = pairer.tolerance_s, pairer.timeout_s
         t_in_use, field = pairer._t_in_use, pairer._field_in_use
         mag_cal = self._mag_cal
@@ -454,6 +455,8 @@ class ImuEngine:
         for imu, t, x1, y1, z1, x2, y2, z2 in rows:
             if not imu:
                 if mag_cal is None:
+                    if len(pend) == pend_max:
+                        pairer.n_pushed_out += 1
                     push((t, (x1, y1, z1)))
                 else:
                     on_mag(t, (x1, y1, z1))
@@ -472,6 +475,7 @@ class ImuEngine:
                 t_in_use, field = pairer._t_in_use, pairer._field_in_use
                 pend = pairer._pending
                 push, popleft = pend.append, pend.popleft
+                pend_max = pend.maxlen
                 clean = self._t_ahead is None and self._n_far_back == 0
                 if mags is not None and rejected is not None:
                     mags.extend(self.paired_mag or nan3)

@@ -48,7 +48,7 @@ def _state(e: ImuEngine) -> tuple:
     f = e.filter
     return (e.n_in, e.n_out, e.counts(), e.n_answered_stale, e.stale_share, e.n_resets_jump, e.clock_s, e.paired_mag,
             e.latest_stamp_s, e._t_ahead, e._n_far_back, f.quaternion, f.gyro_bias, f.orientation_variance, f.initialized,
-            e.hard_iron_state())
+            e.hard_iron_state(), e.pairer.n_pushed_out, e.pairer.n_stray_ahead)
 
 
 @pytest.mark.parametrize('settings', [
@@ -71,6 +71,25 @@ def test_on_chunk_with_an_offset_the_online_hard_iron_applies(answers):
     subtracted mid-stream (its pairing, the applied offset's jump, the filter told), to the bit as message by
     message."""
     _compare({}, answers, _stream((30e-6, -12e-6, 8e-6), duration_s=60.0))
+
+
+def test_on_chunk_counts_the_magnetometer_samples_pushed_out_as_message_by_message():
+    """A magnetometer clock 50 s ahead of the IMU's: its samples wait in the pairer's queue, which pushes out its
+    oldest once full (MagPairer.QUEUE_MAX), counted alike in both paths: 60 s at 100 Hz, 6000 samples, 1904 out."""
+    d = generate(60.0, 100.0, seed=3)
+    n = len(d.t_s)
+    is_imu = [False, True] * n
+    stamps = np.repeat(d.t_s, 2)
+    stamps[0::2] += 50.0
+    v1, v2 = np.empty((2 * n, 3)), np.zeros((2 * n, 3))
+    v1[0::2], v1[1::2], v2[1::2] = d.mag, d.gyr, d.acc
+    one, bulk = ImuEngine(*build({})), ImuEngine(*build({}))
+    for imu, t, a, b in zip(is_imu, stamps.tolist(), v1.tolist(), v2.tolist(), strict=True):
+        one.on_imu(t, tuple(a), tuple(b)) if imu else one.on_mag(t, tuple(a))
+    for a, b in ((0, 5001), (5001, 9000), (9000, 2 * n)):
+        bulk.on_chunk(is_imu[a:b], stamps[a:b].tolist(), tuple(v1[a:b].T.tolist()), tuple(v2[a:b].T.tolist()))
+    assert repr(_state(bulk)) == repr(_state(one))
+    assert one.pairer.n_pushed_out == n - one.pairer.QUEUE_MAX == 1904
 
 
 @pytest.mark.parametrize('settings', [{}, {'mag_bias_x': 1e-6}, {'remove_gravity_vector': True}])

@@ -532,6 +532,54 @@ def test_odd_magnetometer_stamps_pair_as_in_replay_when_messages_queue_up(contex
     node.destroy_node()
 
 
+@pytest.mark.parametrize('every', [1, 4])
+def test_a_backlog_longer_than_the_pairers_queue_is_taken_as_it_empties(context, inputs, every):
+    """Everything queued at once, more magnetometer samples than the pairer's queue holds (600 and 150 against a
+    queue of 120 here, 4096 in use): the node takes them only while the queue has room, and again as the IMU samples
+    use them; none is pushed out, none is late, and the answers are replay's. With a magnetometer at every
+    ``every``-th IMU stamp; without DDS (the reader queues are lists, served as rclpy's executor does: each wake-up
+    one magnetometer and one IMU callback, each draining what is queued). Taking one sample per take once the queue
+    was within the margin of full pushed out those the next IMU samples use (a review's simulation, a queue of 300
+    and every 4th: 2042 of 2289 answers off replay's, none late)."""
+    from collections import deque
+
+    from rclpy.serialization import deserialize_message, serialize_message
+
+    msgs, n_mag = [], 0
+    for topic, msg in inputs[:1400]:
+        if topic == MAG:
+            n_mag += 1
+            if (n_mag - 1) % every:
+                continue
+        msgs.append((topic, msg))
+    data = [(topic, serialize_message(msg)) for topic, msg in msgs]
+    node = reliable_node(context)
+    pairer = node.engine.pairer
+    pairer.QUEUE_MAX = 120
+    pairer._pending = deque(maxlen=120)
+    answers = []
+    node.pub_imu.publish = answers.append
+    queued = {MAG: deque(), IMU: deque()}
+    node._take_mag = lambda: queued[MAG].popleft() if queued[MAG] else None
+    node._take_imu = lambda: queued[IMU].popleft() if queued[IMU] else None
+    start = 200 if every == 1 else 125  # (lock-step learnt, or not, before the backlog)
+    for k, (topic, raw) in enumerate(data):
+        queued[topic].append(raw)
+        if k < start or k == len(data) - 1:
+            while queued[MAG] or queued[IMU]:
+                if queued[MAG]:
+                    node._on_mag_raw(queued[MAG].popleft())
+                if queued[IMU]:
+                    node._on_imu_raw(queued[IMU].popleft())
+    node._answer_all(node.sync.flush(time.monotonic()))
+    assert pairer.n_pushed_out == 0 and node.stats.n_mag_late == 0 and len(answers) == 700
+    assert node.diagnostics().values['magnetometer samples pushed out of the pairing queue (too far ahead)'] == '0'
+    q = np.array([(m.orientation.x, m.orientation.y, m.orientation.z, m.orientation.w)
+                  for m in (deserialize_message(bytes(a), Imu) for a in answers)])
+    np.testing.assert_array_equal(q, _ref_xyzw(_replay_reference(msgs)))
+    node.destroy_node()
+
+
 def test_endpoints_that_cannot_match_are_warned_about_once_without_per_wake_event_handlers(context):
     """rclpy's default QoS-event handlers cost two waitables per endpoint in every wake-up's wait set: the node has
     none of its own (as many as a bare rclpy node), and its timer reports what they would have, from the graph."""
@@ -964,6 +1012,7 @@ def _assert_as_replay_in_the_nodes_order(res, bag, log, overtakes=0):
     late = _late_mags(log)
     d = res.diagnostics
     assert len(late) == int(d['magnetometer samples after their IMU sample']), d
+    assert d['magnetometer samples pushed out of the pairing queue (too far ahead)'] == '0', d
     mag_stamps = [read_mag(raw)[0] for _, topic, raw in load_messages(bag, [MAG])[1] if topic == MAG]
     where = {t: i for i, t in enumerate(mag_stamps)}
     at = sorted(where[t] for t, _ in late)  # (a stamp not in the bag: KeyError, a fault too)

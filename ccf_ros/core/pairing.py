@@ -25,10 +25,10 @@ class MagPairer:
         tolerance_s: a magnetometer stamp up to this much after the IMU stamp still counts (clock jitter), s.
     """
 
-    #: Most samples queued, oldest pushed out first: the samples ahead of the IMU stream wait here. The node takes a
-    #: reader queue's backlog only while there is :attr:`room`, but its executor hands it every magnetometer sample
-    #: as it comes: an IMU topic delivered this far behind the magnetometer's loses pairs. 4096 is 14 s of a 286 Hz
-    #: magnetometer, 4 s at 1 kHz (256 before: 0.9 s at 286 Hz); ~1 MB at most.
+    #: Most samples queued, oldest pushed out first (counted: :attr:`n_pushed_out`): the samples ahead of the IMU
+    #: stream wait here. The node takes a reader queue's backlog only while there is :attr:`room`, but its executor
+    #: hands it every magnetometer sample as it comes: an IMU topic delivered this far behind the magnetometer's
+    #: loses pairs. 4096 is 14 s of a 286 Hz magnetometer, 4 s at 1 kHz (256 before: 0.9 s at 286 Hz); ~1 MB at most.
     QUEUE_MAX = 4096
 
     def __init__(self, timeout_s: float = 0.5, tolerance_s: float = 1e-4) -> None:
@@ -40,6 +40,8 @@ class MagPairer:
         self.tolerance_s = tolerance_s
         #: stray magnetometer stamps dropped (far ahead of the IMU stamp, a current sample behind), over the pairer's life
         self.n_stray_ahead = 0
+        #: samples pushed out of a full queue before an IMU stamp reached them, over the pairer's life
+        self.n_pushed_out = 0
         self.reset()
 
     def reset(self) -> None:
@@ -61,7 +63,10 @@ class MagPairer:
     def add(self, t_s: float, mag: tuple[float, float, float]) -> None:
         """Record a magnetometer sample at ``t_s`` (s)."""
         # A sample that arrives ahead of the IMU stream waits until an IMU stamp reaches it.
-        self._pending.append((t_s, mag))
+        pending = self._pending
+        if len(pending) == pending.maxlen:
+            self.n_pushed_out += 1
+        pending.append((t_s, mag))
 
     def get(self, t_s: float) -> tuple[float, float, float] | None:
         """The magnetometer sample for an IMU sample at ``t_s``, or None if there is none recent enough."""
@@ -101,7 +106,8 @@ class MagPairer:
     @property
     def room(self) -> int:
         """Samples that can be added before the queue pushes out its oldest."""
-        return self.QUEUE_MAX - len(self._pending)
+        pending = self._pending
+        return (self.QUEUE_MAX if pending.maxlen is None else pending.maxlen) - len(pending)
 
     @property
     def stamp_in_use_s(self) -> float:

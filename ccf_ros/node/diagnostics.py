@@ -78,6 +78,7 @@ def diagnostics(
         'magnetometer samples in': str(stats.n_mag),
         'magnetometer samples after their IMU sample': str(stats.n_mag_late),
         'stray magnetometer stamps dropped (far ahead or NaN)': str(engine.pairer.n_stray_ahead),
+        'magnetometer samples pushed out of the pairing queue (too far ahead)': str(engine.pairer.n_pushed_out),
         'samples answered': str(engine.answered()),
         'samples answered with the current orientation (could not advance the filter)': str(engine.n_answered_stale),
         'share of the latest answers with a held orientation': f'{engine.stale_share:.2f}',

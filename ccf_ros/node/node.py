@@ -309,6 +309,7 @@ class CcfNode(Node):
                                                 qos_overriding_options=self._qos_overrides())
         self._take_mag = self._taker(self.sub_mag) if self.sub_mag is not None else _nothing
         self._take_imu = self._taker(self.sub_imu)
+        self._pairer_full = False  # a take stopped on the pairer's room (_take_mags)
         self.srv_reset = self.create_service(Trigger, '~/reset', self._on_reset)
         # robot_localization's idiom: a pose on set_pose sets the heading (its orientation's yaw).
         self.sub_set_pose = self.create_subscription(PoseWithCovarianceStamped, 'set_pose', self._on_set_pose, 10,
@@ -589,7 +590,12 @@ class CcfNode(Node):
     def _take_mags(self) -> None:
         """Take the queued magnetometer samples, as many as the pairer's queue holds without pushing out its oldest
         (less :attr:`PAIRER_MARGIN`). A stalled topic's backlog taken whole could push out those the next IMU
-        samples use; the rest stays in the reader queue until the pairer has used some."""
+        samples use; the rest stays in the reader queue (a KEEP_LAST reader drops its oldest when full) until the
+        pairer has used some."""
+        if self._pairer_full:  # (a take stopped on the room: none until the pairer has used some)
+            if self.engine.pairer.room <= self.PAIRER_MARGIN:
+                return
+            self._pairer_full = False
         take_mag = self._take_mag
         mag = take_mag()
         if mag is None:
@@ -599,6 +605,7 @@ class CcfNode(Node):
             self._mag(mag)
             room -= 1
             if room <= 0:
+                self._pairer_full = True
                 return
             mag = take_mag()
             if mag is None:
