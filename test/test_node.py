@@ -471,6 +471,26 @@ def test_a_stalled_topics_backlog_pairs_as_in_replay(context, inputs, stalls):
         h.close()
 
 
+def _fake_reader_queues(node):
+    """Lists in place of ``node``'s two reader queues (no DDS): {topic: deque of serialized messages}."""
+    from collections import deque
+
+    queued = {MAG: deque(), IMU: deque()}
+    node._take_mag = lambda: queued[MAG].popleft() if queued[MAG] else None
+    node._take_imu = lambda: queued[IMU].popleft() if queued[IMU] else None
+    return queued
+
+
+def _serve(node, queued):
+    """Serve ``queued`` as rclpy's executor does: each wake-up one magnetometer and one IMU callback (each draining
+    what is queued), until both are empty."""
+    while queued[MAG] or queued[IMU]:
+        if queued[MAG]:
+            node._on_mag_raw(queued[MAG].popleft())
+        if queued[IMU]:
+            node._on_imu_raw(queued[IMU].popleft())
+
+
 def _with_strays(msgs, case):
     """``msgs`` (topic, message) with magnetometer stamps edited: strays ahead (``'stray 0.7 s ahead'``, ``'two
     strays 0.7 s ahead'``, ...) from the 150th magnetometer sample on, or every 50th magnetometer sample repeated
@@ -502,7 +522,6 @@ def test_odd_magnetometer_stamps_pair_as_in_replay_when_messages_queue_up(contex
     are replay's. (A take that stopped at the first sample after the IMU stamp failed the strays, one that skipped
     the take when the latest sample had the IMU stamp the repeated stamps.) Without DDS: the reader queues are
     lists here."""
-    from collections import deque
 
     from rclpy.serialization import deserialize_message, serialize_message
 
@@ -511,23 +530,16 @@ def test_odd_magnetometer_stamps_pair_as_in_replay_when_messages_queue_up(contex
     node = reliable_node(context)
     answers = []
     node.pub_imu.publish = answers.append
-    queued = {MAG: deque(), IMU: deque()}
-    node._take_mag = lambda: queued[MAG].popleft() if queued[MAG] else None
-    node._take_imu = lambda: queued[IMU].popleft() if queued[IMU] else None
+    queued = _fake_reader_queues(node)
     imu_seen = 0
     for topic, raw in data:
         queued[topic].append(raw)
         imu_seen += topic == IMU
         if topic == IMU and imu_seen % backlog == 0:
-            while queued[MAG] or queued[IMU]:
-                if queued[MAG]:
-                    node._on_mag_raw(queued[MAG].popleft())
-                if queued[IMU]:
-                    node._on_imu_raw(queued[IMU].popleft())
+            _serve(node, queued)
     node._answer_all(node.sync.flush(time.monotonic()))
     assert node.stats.n_mag_late == 0 and len(answers) == 400
-    q = np.array([(m.orientation.x, m.orientation.y, m.orientation.z, m.orientation.w)
-                  for m in (deserialize_message(bytes(a), Imu) for a in answers)])
+    q = _xyzw([deserialize_message(bytes(a), Imu) for a in answers])
     np.testing.assert_array_equal(q, _ref_xyzw(_replay_reference(msgs)))
     node.destroy_node()
 
@@ -559,23 +571,16 @@ def test_a_backlog_longer_than_the_pairers_queue_is_taken_as_it_empties(context,
     pairer._pending = deque(maxlen=120)
     answers = []
     node.pub_imu.publish = answers.append
-    queued = {MAG: deque(), IMU: deque()}
-    node._take_mag = lambda: queued[MAG].popleft() if queued[MAG] else None
-    node._take_imu = lambda: queued[IMU].popleft() if queued[IMU] else None
+    queued = _fake_reader_queues(node)
     start = 200 if every == 1 else 125  # (lock-step learnt, or not, before the backlog)
     for k, (topic, raw) in enumerate(data):
         queued[topic].append(raw)
         if k < start or k == len(data) - 1:
-            while queued[MAG] or queued[IMU]:
-                if queued[MAG]:
-                    node._on_mag_raw(queued[MAG].popleft())
-                if queued[IMU]:
-                    node._on_imu_raw(queued[IMU].popleft())
+            _serve(node, queued)
     node._answer_all(node.sync.flush(time.monotonic()))
     assert pairer.n_pushed_out == 0 and node.stats.n_mag_late == 0 and len(answers) == 700
     assert node.diagnostics().values['magnetometer samples pushed out of the pairing queue (too far ahead)'] == '0'
-    q = np.array([(m.orientation.x, m.orientation.y, m.orientation.z, m.orientation.w)
-                  for m in (deserialize_message(bytes(a), Imu) for a in answers)])
+    q = _xyzw([deserialize_message(bytes(a), Imu) for a in answers])
     np.testing.assert_array_equal(q, _ref_xyzw(_replay_reference(msgs)))
     node.destroy_node()
 
