@@ -41,11 +41,13 @@ def dipole_field(center_m: Any, moment_a_m2: Any, earth_t: Any = MAG_WORLD) -> F
     return field
 
 
-def wander_path(amplitude_m: float, rng: np.random.Generator, rest_s: float = 5.0) -> Callable[[np.ndarray], np.ndarray]:
-    """A slow wander about the start: per axis a sine of ``amplitude_m`` (m) at 0.02-0.08 Hz (random phase from
-    ``rng``), starting smoothly over the 2 s after ``rest_s`` — a hand-guided sensor that stays seconds in each part
-    of the workspace (for :func:`generate`'s ``path_m``)."""
-    f = rng.uniform(0.02, 0.08, 3)
+def wander_path(
+    amplitude_m: float, rng: np.random.Generator, rest_s: float = 5.0, band_hz: tuple[float, float] = (0.02, 0.08)
+) -> Callable[[np.ndarray], np.ndarray]:
+    """A slow wander about the start: per axis a sine of ``amplitude_m`` (m) at a frequency drawn from ``band_hz``
+    (Hz; random phase from ``rng``), starting smoothly over the 2 s after ``rest_s`` — a hand-guided sensor that stays
+    seconds in each part of the workspace (for :func:`generate`'s ``path_m``)."""
+    f = rng.uniform(band_hz[0], band_hz[1], 3)
     ph = rng.uniform(0.0, 2.0 * np.pi, 3)
 
     def path(t: np.ndarray) -> np.ndarray:
