@@ -351,7 +351,8 @@ class QuaternionCcf(MagGate):
                     # The heading has drifted (or was re-set by a new field) since it was last corrected: the blend
                     # takes a field sample with the Kalman gain of that uncertainty against the field's own
                     # (heading_sigma² per tau_mag_s of samples), so that it re-acquires within a second, not tau_mag_s.
-                    kv = vh / (vh + c.r_head)
+                    # A field that wanders (weight < 1) is as much noisier here as in the blend.
+                    kv = vh / (vh + c.r_head / (self._mag_weight * self._mag_weight))
                     if kv > kh:
                         kh = kv
                         vh *= 1.0 - kv
@@ -408,7 +409,11 @@ class QuaternionCcf(MagGate):
                 not (ni or self.at_rest) and acc_n2 != 0.0,
                 self.at_rest,
             )
-            if w_n and not ni:  # (not during the start-up: the attitude itself is still being found)
+            if w_n and k_lp == 0.0:
+                # Once the tilt is found (the gravity low-pass has handed over from its running mean), not only after
+                # the whole start-up: the LCF's corrections are taken out, so the field's own motion shows as well
+                # while heading is still a running mean (a sensor started in a field that varies with position must
+                # not drag it).
                 self._mag_consistency(
                     we, wn, wu,
                     r0x * scx + r0y * scy + r0z * scz, r1x * scx + r1y * scy + r1z * scz, vx * scx + vy * scy + vz * scz,

@@ -35,6 +35,7 @@ class MagGate(OrientationFilter):
         '_mag_new_s',
         '_mag_ref',
         '_mag_rejected_t',
+        '_mag_u',
         '_mag_weight',
         # The heading's drift variance, rad² (the filter's; raised here when a new field is accepted).
         '_var_head',
@@ -63,6 +64,8 @@ class MagGate(OrientationFilter):
         self._mag_band: tuple[float, ...] | None = None
         self._mag_band_t = -math.inf
         self._mag_consistent = True
+        # The bias's relative uncertainty the verdict allows for: the largest over the band's memory (see below).
+        self._mag_u = 0.0
         # The heading blend's gain relative to tau_mag_s's (1: the field is as steady as a homogeneous one).
         self._mag_weight = 1.0
 
@@ -117,6 +120,12 @@ class MagGate(OrientationFilter):
         n = sqrt(we * we + wn * wn + wu * wu)
         if not n:
             return
+        # The drift an unknown bias gave the attitude stays in the band for its long time constant: the allowance
+        # follows the bias's uncertainty up at once and down only as fast as the band forgets (after a start while
+        # moving, whose unknown bias is learnt within a second or two, the score still holds the start-up's drift).
+        u = self._kf.u
+        mu = self._mag_u
+        mu = self._mag_u = u if u >= mu or self._mag_band is None else mu + c.k_band2 * (u - mu)
         ue, un, uu = we / n, wn / n, wu / n
         band = self._mag_band
         t_now = self._t_last
@@ -145,7 +154,7 @@ class MagGate(OrientationFilter):
         # The heading reference is as noisy as the field wanders: the blend's time constant (and the bias estimate's
         # heading noise) grows with the wander beyond a homogeneous field's, which includes the drift an unknown
         # bias gives the attitude.
-        r2 = s2 / (c.wander_var + c.drift_var * self._kf.u)
+        r2 = s2 / (c.wander_var + c.drift_var * mu)
         self._mag_weight = 1.0 / sqrt(r2) if r2 > 1.0 else 1.0
         if self._mag_consistent:
             if r2 > _REJECT2:
