@@ -990,6 +990,44 @@ def _engine_over_bag(bag, late=()):
     return np.array(t_out), np.array(q_out)
 
 
+@pytest.mark.parametrize('stalls_at', [None, 30])
+def test_the_live_recorder_waits_for_a_magnetometer_backlog_that_comes_after_the_last_answer(stalls_at):
+    """run_live's end: every IMU sample is answered, but the magnetometer topic's backlog is still coming in (a stall
+    under load: 313 samples after the last IMU sample in one CI run). The diagnostics returned must count them all,
+    or the live tests compare a log with more late samples than the diagnostics say. A count that stops (samples
+    lost on the way) ends the wait after three unchanged diagnostics, not at the timeout. No DDS: the recorder's
+    state is fed as its subscription would."""
+    import threading
+    import time
+
+    from ccf_ros.offline.live import Recorder
+
+    rec = Recorder('unused', 'ccf_node')
+    rec.received = [(0.0, (1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0))] * 5  # all 5 IMU samples answered
+    stop = threading.Event()
+
+    def diagnostics():  # the node's 1 Hz diagnostics, faster: the magnetometer count climbs to 50 (or stalls)
+        k = 0
+        while not stop.is_set():
+            k += 1
+            got = min(10 * k, 50 if stalls_at is None else stalls_at)
+            rec.diagnostics = {'samples answered': '5', 'magnetometer samples in': str(got)}
+            rec.n_diagnostics += 1
+            stop.wait(0.02)
+
+    feeder = threading.Thread(target=diagnostics)
+    feeder.start()
+    try:
+        t0 = time.monotonic()
+        rec.wait_answered(5, timeout_s=30.0, n_mag=50)
+        waited = time.monotonic() - t0
+    finally:
+        stop.set()
+        feeder.join()
+    assert rec.diagnostics['magnetometer samples in'] == ('50' if stalls_at is None else str(stalls_at))
+    assert waited < 10.0  # not the timeout (measured ~0.1 s)
+
+
 def _late_mags(log):
     """``(stamp, n)`` of each magnetometer sample the node logged as late: its engine got it after its ``n``-th IMU
     sample (ccf_ros.node.node: CcfNode._mag_late)."""

@@ -121,12 +121,15 @@ class Recorder:
         self.node.destroy_node()
         rclpy.try_shutdown(context=self.ctx)
 
-    def wait_answered(self, n: int, timeout_s: float, quiet_s: float = 2.0) -> None:
+    def wait_answered(self, n: int, timeout_s: float, quiet_s: float = 2.0, n_mag: int = 0) -> None:
         """Until ``n`` outputs arrived, or ``timeout_s`` passed, or the node's diagnostics say it answered ``n`` (or
-        more) samples and nothing new came for ``quiet_s`` (the rest was lost on the way); then until the next
-        diagnostics message (the values returned describe the end of the run).
+        more) samples and nothing new came for ``quiet_s`` (the rest was lost on the way); then until its diagnostics
+        count ``n_mag`` magnetometer samples in (or the count stays the same over three diagnostics messages: lost on
+        the way); then until the next diagnostics message (the values returned describe the end of the run).
 
-        Not "nothing new for ``quiet_s``" alone: on a loaded machine the node can stall longer than that."""
+        Not "nothing new for ``quiet_s``" alone: on a loaded machine the node can stall longer than that. The
+        magnetometer too: a topic stalled under load delivers its backlog after the last IMU sample is answered (seen:
+        313 samples), and diagnostics read before it is in do not describe the end of the run."""
         deadline = time.time() + timeout_s
         last_n, quiet_since = -1, time.time()
         while len(self.received) < n and time.time() < deadline:
@@ -135,6 +138,18 @@ class Recorder:
             elif time.time() - quiet_since > quiet_s and (
                     int(self.diagnostics.get('samples answered', -1)) >= n or time.time() - quiet_since > 10 * quiet_s):
                 break  # answered and lost on the way, or (10 x quiet_s) samples the node could not answer
+            time.sleep(0.05)
+        last_mag, same, seen = -1, 0, self.n_diagnostics
+        while n_mag and time.time() < deadline:
+            got = int(self.diagnostics.get('magnetometer samples in', -1))
+            if got >= n_mag:
+                break
+            if self.n_diagnostics != seen:
+                seen = self.n_diagnostics
+                same = same + 1 if got == last_mag else 0
+                last_mag = got
+                if same >= 3:
+                    break
             time.sleep(0.05)
         n_diag = self.n_diagnostics
         end = time.time() + 5.0
@@ -169,6 +184,7 @@ def run_live(bag: Path, rate: float = 4.0, timeout_s: float = 120.0, node_qos: s
     isolate_dds()
     types, messages = load_messages(bag, ['/imu/data_raw', '/imu/mag'])
     n_imu = sum(1 for _, topic, _ in messages if topic == '/imu/data_raw')
+    n_mag = sum(1 for _, topic, _ in messages if topic == '/imu/mag')
     levels = ['--log-level', 'warn'] + (['--log-level', 'ccf_node:=debug'] if node_log is not None else [])
     with contextlib.ExitStack() as cleanup:  # the log is closed and the node stopped whatever fails on the way
         log = cleanup.enter_context(Path(node_log).open('w')) if node_log is not None else None
@@ -195,7 +211,7 @@ def run_live(bag: Path, rate: float = 4.0, timeout_s: float = 120.0, node_qos: s
             play(rec.node, {'/imu/data_raw': types['/imu/data_raw'], '/imu/mag': types['/imu/mag']}, messages,
                  rate=rate, qos_depth=10000, wait_matched_s=30.0)
             # Done when every sample is answered, or when nothing more arrives.
-            rec.wait_answered(n_imu, timeout_s)
+            rec.wait_answered(n_imu, timeout_s, n_mag=n_mag)
         finally:
             stopped.append(stop(proc))
         exit_code = stopped[0]
