@@ -1066,9 +1066,9 @@ def test_a_field_that_turns_during_the_start_up_does_not_drag_heading(band_hz):
 @pytest.mark.parametrize(('moment', 'dist_m', 'seed', 'measured'), [(3000.0, 1.5, 10, (2.32, 5.96)),
                                                                      (600.0, 1.2, 8, (7.97, 14.98))])
 def test_started_moving_in_a_turning_field_a_heading_re_acquired_weighs_it_as_the_blend(moment, dist_m, seed, measured):
-    """Started while moving (0.5 s rest, 0.5 °/s bias per axis: the 6-D heading drifts) through a field that turns:
-    the magnetometer still helps, because a heading re-acquired after the field was weighted down takes it with the
-    blend's weight (without: 9-D 12.2 and 26.2°). `experiments/field_sweep.py --rest 0.5`, '3000/1.5 across' seed 10,
+    """Started while moving (0.5 s rest, a bias drawn with σ 0.5 °/s per axis: the 6-D heading drifts) through a
+    field that turns: the magnetometer still helps, because a heading re-acquired after the field was weighted down
+    takes it with the blend's weight (without: 9-D 12.2 and 26.2°). `experiments/field_sweep.py --rest 0.5`, '3000/1.5 across' seed 10,
     '600/1.2 across' seed 8."""
     from ccf_ros.core.metrics import fitted_total_rmse_deg
     from ccf_ros.offline.simulate import dipole_field, wander_path

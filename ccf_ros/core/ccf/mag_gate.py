@@ -122,7 +122,8 @@ class MagGate(OrientationFilter):
             return
         # The drift an unknown bias gave the attitude stays in the band for its long time constant: the allowance
         # follows the bias's uncertainty up at once and down only as fast as the band forgets (after a start while
-        # moving, whose unknown bias is learnt within a second or two, the score still holds the start-up's drift).
+        # moving, whose unknown bias is learnt within a second or two, the score still holds the start-up's drift;
+        # test_started_while_moving_the_heading_converges fails without this).
         u = self._kf.u
         mu = self._mag_u
         mu = self._mag_u = u if u >= mu or self._mag_band is None else mu + c.k_band2 * (u - mu)
