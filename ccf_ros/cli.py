@@ -202,6 +202,8 @@ def cmd_play(args: argparse.Namespace) -> int:
         raise ParameterError(f'--rate must be > 0, got {args.rate!r}')
     if not 0 <= args.wait_for_subscribers < float('inf'):
         raise ParameterError(f'--wait-for-subscribers must be a finite number >= 0, got {args.wait_for_subscribers!r}')
+    if args.qos_depth < 1:
+        raise ParameterError(f'--qos-depth must be >= 1, got {args.qos_depth!r}')
     _need_rclpy('ccf play')
     import rclpy
     from rclpy.exceptions import NotInitializedException
@@ -221,7 +223,8 @@ def cmd_play(args: argparse.Namespace) -> int:
     try:
         node = rclpy.create_node('ccf_play')
         n = play(node, types, messages, rate=args.rate, loop=args.loop, clock=args.clock,
-                 should_stop=lambda: not rclpy.ok(), progress=bar.update, wait_matched_s=args.wait_for_subscribers)
+                 should_stop=lambda: not rclpy.ok(), progress=bar.update, wait_matched_s=args.wait_for_subscribers,
+                 qos_depth=args.qos_depth)
     except (KeyboardInterrupt, ExternalShutdownException):
         n = bar.n
     except (RCLError, NotInitializedException):
@@ -484,6 +487,9 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument('--wait-for-subscribers', type=float, default=5.0, metavar='S',
                     help='first wait up to S s until each topic has a subscriber: DDS drops what is sent before, and '
                     "the first samples are the ones a filter starts from (0: don't wait)")
+    pl.add_argument('--qos-depth', type=int, default=1000, metavar='N',
+                    help='history of each publisher (reliable, keep last N): a subscriber more than N messages behind '
+                    'loses the oldest (default 1000)')
     pl.set_defaults(func=cmd_play)
 
     d = add('demo', 'simulate, filter, evaluate and plot: the main job on built-in data')

@@ -217,6 +217,7 @@ def test_other_input_errors_are_one_line(sim_bag, tmp_path, capsys):
         (['simulate', '-o', str(tmp_path / 's'), '--duration', '0.001'], 'ask for at least 2'),
         (['simulate', '-o', str(tmp_path / 'afile'), '--overwrite'], 'is a file, not a bag'),
         (['play', str(sim_bag), '--rate', '0'], '--rate must be > 0'),
+        (['play', str(sim_bag), '--qos-depth', '0'], '--qos-depth must be >= 1'),
         (['eval', str(sim_bag), '--reference', '/ground_truth/pose', '--json', str(tmp_path / 'no' / 'x.json')],
          'no such directory'),
         (['eval', str(sim_bag), '--reference', '/ground_truth/pose'], '/imu/data'),  # no estimate in a raw bag
