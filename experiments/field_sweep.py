@@ -32,7 +32,7 @@ from simulated_accuracy import _heading_rmse
 from ccf_ros.core import run_batch
 from ccf_ros.core.base import ANSWERED_BELOW
 from ccf_ros.core.metrics import summarize
-from ccf_ros.offline.simulate import MAG_WORLD, dipole_field, generate, wander_path
+from ccf_ros.offline.simulate import MAG_WORLD, dipole_beside, generate, wander_path
 from ccf_ros.settings import build
 
 DURATION_S = 67.0
@@ -88,12 +88,7 @@ def make_data(name: str, rate: float, seed: int, rest_s: float | None = None) ->
     e = np.asarray(MAG_WORLD, float)
     parts = []
     for m, dist, orient in dipoles:
-        ang = rng.uniform(0.0, 2.0 * np.pi)
-        center = dist * np.array([np.cos(ang), np.sin(ang), rng.uniform(-0.3, 0.3)])
-        sign = rng.choice([-1.0, 1.0])
-        u = {'across': [-np.sin(ang), np.cos(ang), 0.0], 'along': [np.cos(ang), np.sin(ang), 0.0],
-             'vertical': [0.0, 0.0, 1.0]}[orient]
-        parts.append(dipole_field(center, m * sign * np.asarray(u), earth_t=np.zeros(3)))
+        parts.append(dipole_beside(rng, m, dist, orient, earth_t=np.zeros(3)))
     seen: dict[str, np.ndarray] = {}
 
     def field(pos: np.ndarray, t: np.ndarray) -> np.ndarray:

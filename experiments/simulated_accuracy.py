@@ -35,7 +35,15 @@ from _trials import map_trials, run_9d
 
 from ccf_ros.core import run_batch
 from ccf_ros.core.metrics import error_angles, fit_heading_offset, fitted_total_rmse_deg, summarize
-from ccf_ros.offline.simulate import dipole_field, field_change, generate, generate_swing, generate_vehicle, wander_path
+from ccf_ros.offline.simulate import (
+    dipole_beside,
+    dipole_field,
+    field_change,
+    generate,
+    generate_swing,
+    generate_vehicle,
+    wander_path,
+)
 from ccf_ros.settings import build
 
 #: name -> (what it is, keyword arguments of ccf_ros.offline.simulate.generate)
@@ -86,10 +94,8 @@ def mag_env_data(name: str, rate: float, seed: int, *, clean: bool = False) -> A
         # Hand-guided: the hand's wobble about a point that wanders slowly (0.02-0.08 Hz) over ±0.35 m, so the
         # sensor spends seconds in each part of a field that a horizontal dipole 1.2 m away turns (its moment
         # across the line to the workspace: the field turns with little change of norm and dip).
-        ang = rng.uniform(0.0, 2.0 * np.pi)
-        center = 1.2 * np.array([np.cos(ang), np.sin(ang), rng.uniform(-0.3, 0.3)])
-        moment = 300.0 * rng.choice([-1.0, 1.0]) * np.array([-np.sin(ang), np.cos(ang), 0.0])
-        f = None if clean else dipole_field(center, moment)
+        dipole = dipole_beside(rng, 300.0, 1.2)
+        f = None if clean else dipole
         return generate(90.0, rate, seed, translation_m=0.1, field=f, path_m=wander_path(0.35, rng))
     if name == 'new building':
         f = None if clean else field_change(T_CHANGE_S, 0.8, np.radians(8.0))

@@ -1019,13 +1019,10 @@ def test_a_field_that_varies_with_position_steers_neither_heading_nor_tilt():
     """Issue 23's arm-chain case: hand-guided motion through a field a dipole 1.2 m away turns by tens of degrees over
     the workspace. The magnetometer must not make heading worse than the filter's own 6-D, and never touch tilt."""
     from ccf_ros.core.metrics import fitted_total_rmse_deg, summarize
-    from ccf_ros.offline.simulate import dipole_field, wander_path
+    from ccf_ros.offline.simulate import dipole_beside, wander_path
 
     rng = np.random.default_rng(1001)
-    ang = rng.uniform(0.0, 2.0 * np.pi)
-    center = 1.2 * np.array([np.cos(ang), np.sin(ang), rng.uniform(-0.3, 0.3)])
-    moment = 300.0 * rng.choice([-1.0, 1.0]) * np.array([-np.sin(ang), np.cos(ang), 0.0])
-    d = generate(90.0, 286.0, 1, translation_m=0.1, field=dipole_field(center, moment), path_m=wander_path(0.35, rng))
+    d = generate(90.0, 286.0, 1, translation_m=0.1, field=dipole_beside(rng, 300.0, 1.2), path_m=wander_path(0.35, rng))
     q9 = run_batch(make_filter({}), d.t_s, d.gyr, d.acc, d.mag).quat
     q6 = run_batch(make_filter({'use_mag': False}), d.t_s, d.gyr, d.acc, None).quat
     s9, s6 = summarize(q9, d.q_true, d.moving), summarize(q6, d.q_true, d.moving)
@@ -1045,13 +1042,10 @@ def test_a_field_that_turns_during_the_start_up_does_not_drag_heading(band_hz):
     tilt is found, not only after the start-up. 40 Hz, 67 s after a 5 s rest, as `experiments/field_sweep.py`
     (seed 5 of '600/1.2 across' and '600/1.2 across slow')."""
     from ccf_ros.core.metrics import fitted_total_rmse_deg, summarize
-    from ccf_ros.offline.simulate import dipole_field, wander_path
+    from ccf_ros.offline.simulate import dipole_beside, wander_path
 
     rng = np.random.default_rng(1005)
-    ang = rng.uniform(0.0, 2.0 * np.pi)
-    center = 1.2 * np.array([np.cos(ang), np.sin(ang), rng.uniform(-0.3, 0.3)])
-    moment = 600.0 * rng.choice([-1.0, 1.0]) * np.array([-np.sin(ang), np.cos(ang), 0.0])
-    d = generate(67.0, 40.0, 5, translation_m=0.1, field=dipole_field(center, moment),
+    d = generate(67.0, 40.0, 5, translation_m=0.1, field=dipole_beside(rng, 600.0, 1.2),
                  path_m=wander_path(0.35, rng, band_hz=band_hz))
     q9 = run_batch(make_filter({}), d.t_s, d.gyr, d.acc, d.mag).quat
     q6 = run_batch(make_filter({'use_mag': False}), d.t_s, d.gyr, d.acc, None).quat
@@ -1071,13 +1065,10 @@ def test_started_moving_in_a_turning_field_a_heading_re_acquired_weighs_it_as_th
     takes it with the blend's weight (without: 9-D 12.2 and 26.2°). `experiments/field_sweep.py --rest 0.5`, '3000/1.5 across' seed 10,
     '600/1.2 across' seed 8."""
     from ccf_ros.core.metrics import fitted_total_rmse_deg
-    from ccf_ros.offline.simulate import dipole_field, wander_path
+    from ccf_ros.offline.simulate import dipole_beside, wander_path
 
     rng = np.random.default_rng(1000 + seed)
-    ang = rng.uniform(0.0, 2.0 * np.pi)
-    center = dist_m * np.array([np.cos(ang), np.sin(ang), rng.uniform(-0.3, 0.3)])
-    m = moment * rng.choice([-1.0, 1.0]) * np.array([-np.sin(ang), np.cos(ang), 0.0])
-    d = generate(67.0, 40.0, seed, rest_s=0.5, translation_m=0.1, field=dipole_field(center, m),
+    d = generate(67.0, 40.0, seed, rest_s=0.5, translation_m=0.1, field=dipole_beside(rng, moment, dist_m),
                  path_m=wander_path(0.35, rng, 0.5))
     q9 = run_batch(make_filter({}), d.t_s, d.gyr, d.acc, d.mag).quat
     q6 = run_batch(make_filter({'use_mag': False}), d.t_s, d.gyr, d.acc, None).quat

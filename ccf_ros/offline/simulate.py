@@ -41,6 +41,22 @@ def dipole_field(center_m: Any, moment_a_m2: Any, earth_t: Any = MAG_WORLD) -> F
     return field
 
 
+def dipole_beside(
+    rng: np.random.Generator, moment_a_m2: float, distance_m: float, orientation: str = 'across',
+    earth_t: Any = MAG_WORLD,
+) -> Field:
+    """:func:`dipole_field` of a dipole ``distance_m`` (m) from the start, at a bearing drawn from ``rng`` and a
+    height of ±0.3 ``distance_m``, its moment ``moment_a_m2`` (A m², sign drawn from ``rng``) across the line to the
+    start (``'across'``: the field there turns with little change of norm and dip), along it (``'along'``) or
+    vertical (``'vertical'``)."""
+    ang = rng.uniform(0.0, 2.0 * np.pi)
+    center = distance_m * np.array([np.cos(ang), np.sin(ang), rng.uniform(-0.3, 0.3)])
+    sign = rng.choice([-1.0, 1.0])
+    axis = {'across': [-np.sin(ang), np.cos(ang), 0.0], 'along': [np.cos(ang), np.sin(ang), 0.0],
+            'vertical': [0.0, 0.0, 1.0]}[orientation]
+    return dipole_field(center, moment_a_m2 * sign * np.asarray(axis), earth_t)
+
+
 def wander_path(
     amplitude_m: float, rng: np.random.Generator, rest_s: float = 5.0, band_hz: tuple[float, float] = (0.02, 0.08)
 ) -> Callable[[np.ndarray], np.ndarray]:
