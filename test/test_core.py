@@ -1057,24 +1057,80 @@ def test_a_field_that_turns_during_the_start_up_does_not_drag_heading(band_hz):
     assert s9.inclination_rmse_deg < 1.1 * s6.inclination_rmse_deg, (s9.inclination_rmse_deg, s6.inclination_rmse_deg)
 
 
-@pytest.mark.parametrize(('moment', 'dist_m', 'seed', 'measured'), [(3000.0, 1.5, 10, (2.32, 5.96)),
-                                                                     (600.0, 1.2, 8, (7.97, 14.98))])
-def test_started_moving_in_a_turning_field_a_heading_re_acquired_weighs_it_as_the_blend(moment, dist_m, seed, measured):
-    """Started while moving (0.5 s rest, a bias drawn with σ 0.5 °/s per axis: the 6-D heading drifts) through a
-    field that turns: the magnetometer still helps, because a heading re-acquired after the field was weighted down
-    takes it with the blend's weight (without: 9-D 12.2 and 26.2°). `experiments/field_sweep.py --rest 0.5`, '3000/1.5 across' seed 10,
-    '600/1.2 across' seed 8."""
+def _started_moving_in_a_dipole(moment: float, dist_m: float, bias_deg_s: float, seeds: range) -> tuple[float, float]:
+    """Mean over ``seeds`` of the (9-D, 6-D) heading RMSE (one offset fitted each), degrees: 67 s at 40 Hz after a
+    0.5 s rest, the hand wandering through a dipole's field as `experiments/field_sweep.py --rest 0.5 --bias-deg B`
+    runs it (a bias drawn with σ ``bias_deg_s`` °/s per axis)."""
     from ccf_ros.core.metrics import fitted_total_rmse_deg
     from ccf_ros.offline.simulate import dipole_beside, wander_path
 
-    rng = np.random.default_rng(1000 + seed)
-    d = generate(67.0, 40.0, seed, rest_s=0.5, translation_m=0.1, field=dipole_beside(rng, moment, dist_m),
-                 path_m=wander_path(0.35, rng, 0.5))
-    q9 = run_batch(make_filter({}), d.t_s, d.gyr, d.acc, d.mag).quat
-    q6 = run_batch(make_filter({'use_mag': False}), d.t_s, d.gyr, d.acc, None).quat
-    h9, h6 = fitted_total_rmse_deg(q9, d.q_true, d.moving), fitted_total_rmse_deg(q6, d.q_true, d.moving)
+    h = []
+    for seed in seeds:
+        rng = np.random.default_rng(1000 + seed)
+        d = generate(67.0, 40.0, seed, rest_s=0.5, translation_m=0.1, field=dipole_beside(rng, moment, dist_m),
+                     path_m=wander_path(0.35, rng, 0.5), bias_init_rad_s=math.radians(bias_deg_s))
+        q9 = run_batch(make_filter({}), d.t_s, d.gyr, d.acc, d.mag).quat
+        q6 = run_batch(make_filter({'use_mag': False}), d.t_s, d.gyr, d.acc, None).quat
+        h.append((fitted_total_rmse_deg(q9, d.q_true, d.moving), fitted_total_rmse_deg(q6, d.q_true, d.moving)))
+    m9, m6 = np.mean(h, axis=0)
+    return float(m9), float(m6)
+
+
+@pytest.mark.parametrize(('moment', 'dist_m', 'seed', 'measured'), [(600.0, 1.2, 8, (6.41, 14.98)),
+                                                                     (3000.0, 1.5, 7, (4.21, 10.11))])
+def test_started_moving_in_a_turning_field_a_heading_re_acquired_weighs_it_as_the_blend(moment, dist_m, seed, measured):
+    """Started while moving with a bias of σ 0.5 °/s per axis (the 6-D heading drifts) through a field that turns:
+    the magnetometer still helps, because a heading re-acquired after the field was weighted down takes it with the
+    blend's weight (without: 9-D 8.72 and 7.30). '600/1.2 across' seed 8 and '3000/1.5 across' seed 7 of
+    `experiments/field_sweep.py --rest 0.5`."""
+    m9, m6 = _started_moving_in_a_dipole(moment, dist_m, 0.5, [seed])
     # Measured (9-D, 6-D): `measured`.
-    assert h9 < 0.8 * h6, (h9, h6, measured)
+    assert m9 < 0.5 * m6, (m9, m6, measured)
+
+
+@pytest.mark.parametrize(('moment', 'dist_m', 'bias_deg_s', 'measured', 'before'), [
+    (300.0, 1.2, 0.15, (3.23, 2.65), (5.11, 2.65)),
+    (3000.0, 1.5, 0.5, (2.98, 4.97), (3.97, 4.97)),
+    (600.0, 1.2, 0.5, (3.04, 4.97), (5.02, 4.97)),
+])
+def test_started_moving_in_a_turning_field_the_bias_does_not_learn_its_turn(moment, dist_m, bias_deg_s, measured,
+                                                                             before):
+    """Started while moving through a field that turns (seeds 0-5 of the sweep's layout): a field that returns after
+    a rejection neither teaches the bias (its heading rows) nor re-acquires heading whole until it has steered
+    heading steadily for MAG_BAND_S[1]. Before that rule (`before`: 9-D, 6-D) it passed the check for a few seconds
+    while turning slowly, the bias learnt its turn (0.4-0.5 °/s along world up with a bias of σ 0.15 °/s), and
+    nothing corrected it while the field was rejected again. With a small bias the 9-D heading stays near the 6-D's;
+    with a large one (the 6-D heading drifts) the magnetometer helps."""
+    m9, m6 = _started_moving_in_a_dipole(moment, dist_m, bias_deg_s, range(6))
+    # Measured (9-D, 6-D): `measured`.
+    if bias_deg_s < 0.3:
+        assert m9 < m6 + 0.7, (m9, m6, measured)
+    else:
+        assert m9 < 0.7 * m6, (m9, m6, measured)
+
+
+def test_a_noisy_magnetometer_s_single_outliers_do_not_stop_the_field_counting_as_steady():
+    """A phone-grade magnetometer (3x the noise: 10-18 % of its samples outside the norm and dip bounds, one at a time)
+    in a homogeneous field: only runs of rejected samples count against the steadiness timer, so the field keeps
+    teaching the bias and re-acquiring heading. Measured share of moving samples with the field steady: 0.95 and
+    0.92, 12 and 16 % rejected (counting every rejected sample: 0.68 and 0.49; `experiments/simulated_accuracy.py`'s
+    phone-grade 9-D total 2.55 against 2.63 then, seeds 0-9)."""
+    from ccf_ros.core.base import ANSWERED_BELOW
+    from ccf_ros.core.ccf import MAG_BAND_S
+
+    for seed in (0, 1):
+        d = generate(120.0, 100.0, seed, gyro_noise_rad_s=0.02, acc_noise_m_s2=0.15, mag_noise_t=1.5e-6,
+                     bias_init_rad_s=math.radians(0.7), bias_walk_rad_s_sqrt_s=5e-4)
+        f = make_filter({})
+        steady, rejected = [], []
+        for t, g, a, m, mv in zip(d.t_s.tolist(), d.gyr.tolist(), d.acc.tolist(), d.mag.tolist(), d.moving.tolist(),
+                                  strict=True):
+            assert f._update_floats(t, *g, *a, m) < ANSWERED_BELOW
+            if mv:
+                steady.append(f._mag_steady_s >= MAG_BAND_S[1])
+                rejected.append(f.mag_disturbed)
+        assert np.mean(rejected) > 0.05, np.mean(rejected)  # the case: a noisy magnetometer
+        assert np.mean(steady) > 0.8, (seed, np.mean(steady))
 
 
 def test_the_engine_counts_clipped_gyro_samples_across_resets_and_diagnostics_show_them():

@@ -10,17 +10,20 @@ from ..base import CommonParams
 from ..quaternion import Quat, level_quat, quat_from_acc_mag_scalar, quat_mul_scalar, relevel
 from .bias import BiasKalman
 from .discretisation import _BlockCoefficients, _cached, _Coefficients
-from .mag_gate import MagGate
+from .mag_gate import STEADY_LOSS, MagGate
 from .params import (
     _DEG,
     BIAS_UPDATE_PERIOD_S,
     CLIP_FRACTION,
     GRAVITY_M_S2,
+    MAG_BAND_S,
     REST_BIAS_TOL_RAD_S,
     REST_RELEARN_S,
     CcfParams,
 )
 
+#: A field that has steered heading this long (s, the steadiness timer of MagGate) has shown that it stays put.
+_STEADY_S = MAG_BAND_S[1]
 _PI = math.pi
 _INF = math.inf
 _TWO_PI = 2.0 * math.pi
@@ -351,8 +354,15 @@ class QuaternionCcf(MagGate):
                     # The heading has drifted (or was re-set by a new field) since it was last corrected: the blend
                     # takes a field sample with the Kalman gain of that uncertainty against the field's own
                     # (heading_sigma² per tau_mag_s of samples), so that it re-acquires within a second, not tau_mag_s.
-                    # A field that wanders (weight < 1) is as much noisier here as in the blend.
-                    kv = vh / (vh + c.r_head / (self._mag_weight * self._mag_weight))
+                    # A field that wanders (weight < 1) is as much noisier here as in the blend. Not before the field
+                    # has steered heading steadily for _STEADY_S (except in the start-up, whose heading is a running
+                    # mean): a field that returns after a rejection may be one that turns as the sensor moves through
+                    # it, passing the check for a few seconds before it turns again, and a re-acquisition would take
+                    # its direction of the moment whole; until then only the blend corrects heading.
+                    if ni or self._mag_steady_s >= _STEADY_S:
+                        kv = vh / (vh + c.r_head / (self._mag_weight * self._mag_weight))
+                    else:
+                        kv = 0.0
                     if kv > kh:
                         kh = kv
                         vh *= 1.0 - kv
@@ -379,6 +389,12 @@ class QuaternionCcf(MagGate):
                 cz += kd * vz
             else:
                 self.mag_disturbed = True
+                # Only runs of rejected samples count against steadiness, not single ones (a noisy magnetometer's
+                # outliers): the previous sample was rejected too.
+                t = self._t_last
+                if t - self._mag_rej_t <= 1.5 * dt:
+                    self._mag_steady_s -= STEADY_LOSS * dt
+                self._mag_rej_t = t
                 self._var_head = _drift(self._var_head, c.sigma_init * sqrt(self._kf.u) * dt, c.var_arw)
         else:
             self._var_head = _drift(self._var_head, c.sigma_init * sqrt(self._kf.u) * dt, c.var_arw)
@@ -400,9 +416,14 @@ class QuaternionCcf(MagGate):
             cb = self._bcoef
             if not cb.t_lo <= blk_t <= cb.t_hi:
                 cb = self._bcoef = self._block_coefficients(blk_t)
+            steady = self._mag_steady_s + blk_t
+            steady = self._mag_steady_s = 0.0 if steady < 0.0 else (_STEADY_S if steady > _STEADY_S else steady)
             bx, by, bz = self._kf.update(
                 cb, blk_n, bx, by, bz, (r0x, r0y, r0z, r1x, r1y, r1z, vx, vy, vz), nx, ny, nz,
-                (h_sum, h_n, self._mag_ref[1], self._mag_weight) if h_n else None,
+                # The heading rows only from a field that has steered heading steadily for _STEADY_S: one that turns
+                # slowly through the check's allowance for a few seconds would teach the bias its turn, which nothing
+                # corrects while it is rejected afterwards.
+                (h_sum, h_n, self._mag_ref[1], self._mag_weight) if h_n and steady >= _STEADY_S else None,
                 gx * gx + gy * gy + gz * gz,
                 # Not during the start-up (ni): the errors then are the initial attitude's, not the bias's; not at
                 # rest, where the low-passed gyro below is far more informative; not without an accelerometer.

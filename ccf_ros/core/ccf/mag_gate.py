@@ -16,6 +16,8 @@ from .params import MAG_BAND_S, MAG_REJECT_SIGMAS, NEW_FIELD_TURN_RAD, CcfParams
 
 #: The new-field timer loses this many seconds per second of samples that disagree with the candidate.
 _LEAK = 3.0
+#: ... and so does the steadiness timer (QuaternionCcf._step adds each sample's time back with its block's).
+STEADY_LOSS = 1.0 + _LEAK
 _REJECT2 = MAG_REJECT_SIGMAS**2
 
 
@@ -34,7 +36,9 @@ class MagGate(OrientationFilter):
         '_mag_learn_s',
         '_mag_new_s',
         '_mag_ref',
+        '_mag_rej_t',
         '_mag_rejected_t',
+        '_mag_steady_s',
         '_mag_u',
         '_mag_weight',
         # The heading's drift variance, rad² (the filter's; raised here when a new field is accepted).
@@ -68,6 +72,12 @@ class MagGate(OrientationFilter):
         self._mag_u = 0.0
         # The heading blend's gain relative to tau_mag_s's (1: the field is as steady as a homogeneous one).
         self._mag_weight = 1.0
+        # A leaky timer of how long the field has steered heading, s: + the time of each block, - STEADY_LOSS x the
+        # time of each rejected sample that follows another, within [0, MAG_BAND_S[1]]. Below the top, the field has
+        # not shown long enough that it stays put for its heading error to teach the bias or re-acquire heading at
+        # once (see QuaternionCcf._step). And the stamp of the last rejected sample, s.
+        self._mag_steady_s = 0.0
+        self._mag_rej_t = -math.inf
 
     def _bounds(self, norm: float, sin_dip: float) -> tuple[float, float, float, float]:
         """Acceptance bounds (squared norm, sin(dip)) around a field of ``norm`` and dip ``asin(sin_dip)``.
@@ -234,6 +244,7 @@ class MagGate(OrientationFilter):
                 self._mag_band_t = t
                 self._mag_consistent = True
                 self._mag_weight = 1.0
+                self._mag_steady_s = MAG_BAND_S[1]
                 # The heading kept so far came from the old field (or the gyro since): it is re-acquired from the new
                 # one, as at a start.
                 self._var_head = max(self._var_head, (0.5 * math.pi) ** 2)
