@@ -76,6 +76,12 @@ def test_reset_equals_fresh_instance(sim):
     a = run_batch(f, sim.t_s, sim.gyr, sim.acc, sim.mag)
     b = run_batch(QuaternionCcf(), sim.t_s, sim.gyr, sim.acc, sim.mag)
     assert np.array_equal(a.quat, b.quat) and np.array_equal(a.bias, b.bias)
+    # The magnetometer gate's state too (a stale timer or band would show only in a field that turns).
+    f.reset()
+    fresh = QuaternionCcf()
+    for name in ('_mag_steady_s', '_mag_rej_t', '_mag_rej_n2', '_mag_u', '_mag_band', '_mag_band_t', '_mag_weight',
+                 '_mag_consistent', '_mag_candidate', '_mag_ref', '_var_head'):
+        assert getattr(f, name) == getattr(fresh, name), name
 
 
 @pytest.mark.parametrize(
@@ -1057,10 +1063,23 @@ def test_a_field_that_turns_during_the_start_up_does_not_drag_heading(band_hz):
     assert s9.inclination_rmse_deg < 1.1 * s6.inclination_rmse_deg, (s9.inclination_rmse_deg, s6.inclination_rmse_deg)
 
 
-def _started_moving_in_a_dipole(moment: float, dist_m: float, bias_deg_s: float, seeds: range) -> tuple[float, float]:
+def _slower_magnetometer(mag: np.ndarray, every: int, mode: str) -> np.ndarray:
+    """``mag`` (N, 3) as a magnetometer at 1/``every`` of the IMU's rate delivers it: each sample held until the next
+    (``'held'``, as the engine pairs them) or NaN rows between them (``'missing'``: no sample)."""
+    if every == 1:
+        return mag
+    if mode == 'held':
+        return mag[np.arange(len(mag)) // every * every]
+    out = np.full_like(mag, np.nan)
+    out[::every] = mag[::every]
+    return out
+
+
+def _started_moving_in_a_dipole(moment: float, dist_m: float, bias_deg_s: float, seeds: range | list[int],
+                                mag_every: int = 1, mode: str = 'held') -> tuple[float, float]:
     """Mean over ``seeds`` of the (9-D, 6-D) heading RMSE (one offset fitted each), degrees: 67 s at 40 Hz after a
     0.5 s rest, the hand wandering through a dipole's field as `experiments/field_sweep.py --rest 0.5 --bias-deg B`
-    runs it (a bias drawn with σ ``bias_deg_s`` °/s per axis)."""
+    runs it (a bias drawn with σ ``bias_deg_s`` °/s per axis); the magnetometer at 1/``mag_every`` of the rate."""
     from ccf_ros.core.metrics import fitted_total_rmse_deg
     from ccf_ros.offline.simulate import dipole_beside, wander_path
 
@@ -1069,7 +1088,8 @@ def _started_moving_in_a_dipole(moment: float, dist_m: float, bias_deg_s: float,
         rng = np.random.default_rng(1000 + seed)
         d = generate(67.0, 40.0, seed, rest_s=0.5, translation_m=0.1, field=dipole_beside(rng, moment, dist_m),
                      path_m=wander_path(0.35, rng, 0.5), bias_init_rad_s=math.radians(bias_deg_s))
-        q9 = run_batch(make_filter({}), d.t_s, d.gyr, d.acc, d.mag).quat
+        mag = _slower_magnetometer(d.mag, mag_every, mode)
+        q9 = run_batch(make_filter({}), d.t_s, d.gyr, d.acc, mag).quat
         q6 = run_batch(make_filter({'use_mag': False}), d.t_s, d.gyr, d.acc, None).quat
         h.append((fitted_total_rmse_deg(q9, d.q_true, d.moving), fitted_total_rmse_deg(q6, d.q_true, d.moving)))
     m9, m6 = np.mean(h, axis=0)
@@ -1088,20 +1108,23 @@ def test_started_moving_in_a_turning_field_a_heading_re_acquired_weighs_it_as_th
     assert m9 < 0.5 * m6, (m9, m6, measured)
 
 
-@pytest.mark.parametrize(('moment', 'dist_m', 'bias_deg_s', 'measured', 'before'), [
-    (300.0, 1.2, 0.15, (3.23, 2.65), (5.11, 2.65)),
-    (3000.0, 1.5, 0.5, (2.98, 4.97), (3.97, 4.97)),
-    (600.0, 1.2, 0.5, (3.04, 4.97), (5.02, 4.97)),
+@pytest.mark.parametrize(('moment', 'dist_m', 'bias_deg_s', 'mag', 'measured', 'before'), [
+    (300.0, 1.2, 0.15, (1, ''), (3.23, 2.65), (5.11, 2.65)),
+    (300.0, 1.2, 0.15, (4, 'missing'), (3.22, 2.65), (4.39, 2.65)),
+    (300.0, 1.2, 0.15, (4, 'held'), (3.25, 2.65), (5.07, 2.65)),
+    (3000.0, 1.5, 0.5, (1, ''), (2.98, 4.97), (3.97, 4.97)),
+    (600.0, 1.2, 0.5, (1, ''), (3.04, 4.97), (5.02, 4.97)),
 ])
-def test_started_moving_in_a_turning_field_the_bias_does_not_learn_its_turn(moment, dist_m, bias_deg_s, measured,
+def test_started_moving_in_a_turning_field_the_bias_does_not_learn_its_turn(moment, dist_m, bias_deg_s, mag, measured,
                                                                              before):
     """Started while moving through a field that turns (seeds 0-5 of the sweep's layout): a field that returns after
     a rejection neither teaches the bias (its heading rows) nor re-acquires heading whole until it has steered
     heading steadily for MAG_BAND_S[1]. Before that rule (`before`: 9-D, 6-D) it passed the check for a few seconds
     while turning slowly, the bias learnt its turn (0.4-0.5 °/s along world up with a bias of σ 0.15 °/s), and
     nothing corrected it while the field was rejected again. With a small bias the 9-D heading stays near the 6-D's;
-    with a large one (the 6-D heading drifts) the magnetometer helps."""
-    m9, m6 = _started_moving_in_a_dipole(moment, dist_m, bias_deg_s, range(6))
+    with a large one (the 6-D heading drifts) the magnetometer helps. `mag`: the magnetometer at 1/n of the IMU's 40
+    Hz, its samples missing in between or held."""
+    m9, m6 = _started_moving_in_a_dipole(moment, dist_m, bias_deg_s, range(6), *mag)
     # Measured (9-D, 6-D): `measured`.
     if bias_deg_s < 0.3:
         assert m9 < m6 + 0.7, (m9, m6, measured)
@@ -1109,12 +1132,15 @@ def test_started_moving_in_a_turning_field_the_bias_does_not_learn_its_turn(mome
         assert m9 < 0.7 * m6, (m9, m6, measured)
 
 
-def test_a_noisy_magnetometer_s_single_outliers_do_not_stop_the_field_counting_as_steady():
+@pytest.mark.parametrize(('every', 'mode'), [(1, ''), (5, 'missing'), (5, 'held'), (10, 'held')])
+def test_a_noisy_magnetometer_s_single_outliers_do_not_stop_the_field_counting_as_steady(every, mode):
     """A phone-grade magnetometer (3x the noise: 10-18 % of its samples outside the norm and dip bounds, one at a time)
     in a homogeneous field: only runs of rejected samples count against the steadiness timer, so the field keeps
-    teaching the bias and re-acquiring heading. Measured share of moving samples with the field steady: 0.95 and
-    0.92, 12 and 16 % rejected (counting every rejected sample: 0.68 and 0.49; `experiments/simulated_accuracy.py`'s
-    phone-grade 9-D total 2.55 against 2.63 then, seeds 0-9)."""
+    teaching the bias and re-acquiring heading. Measured share of moving samples with the field steady (seeds 0, 1):
+    0.95 and 0.92 with 12 and 16 % rejected; a magnetometer at 1/5 of the rate 0.94 and 0.94 (samples missing in
+    between), 0.92 and 0.88 (held, as the engine pairs them); at 1/10 held 0.90 and 0.80. Counting every rejected
+    sample: 0.68 and 0.49 (`experiments/simulated_accuracy.py`'s phone-grade 9-D total 2.55 against 2.63 then,
+    seeds 0-9); counting each held copy: 0.60 and 0.46 at 1/5."""
     from ccf_ros.core.base import ANSWERED_BELOW
     from ccf_ros.core.ccf import MAG_BAND_S
 
@@ -1123,14 +1149,15 @@ def test_a_noisy_magnetometer_s_single_outliers_do_not_stop_the_field_counting_a
                      bias_init_rad_s=math.radians(0.7), bias_walk_rad_s_sqrt_s=5e-4)
         f = make_filter({})
         steady, rejected = [], []
-        for t, g, a, m, mv in zip(d.t_s.tolist(), d.gyr.tolist(), d.acc.tolist(), d.mag.tolist(), d.moving.tolist(),
+        mag = _slower_magnetometer(d.mag, every, mode)
+        for t, g, a, m, mv in zip(d.t_s.tolist(), d.gyr.tolist(), d.acc.tolist(), mag.tolist(), d.moving.tolist(),
                                   strict=True):
-            assert f._update_floats(t, *g, *a, m) < ANSWERED_BELOW
+            assert f.update(t, tuple(g), tuple(a), None if math.isnan(m[0]) else tuple(m)) < ANSWERED_BELOW
             if mv:
                 steady.append(f._mag_steady_s >= MAG_BAND_S[1])
                 rejected.append(f.mag_disturbed)
         assert np.mean(rejected) > 0.05, np.mean(rejected)  # the case: a noisy magnetometer
-        assert np.mean(steady) > 0.8, (seed, np.mean(steady))
+        assert np.mean(steady) > 0.65, (seed, np.mean(steady))
 
 
 def test_the_engine_counts_clipped_gyro_samples_across_resets_and_diagnostics_show_them():

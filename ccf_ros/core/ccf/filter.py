@@ -334,6 +334,8 @@ class QuaternionCcf(MagGate):
             wn += mn
             wu += mu
             w_n += 1
+            # (Whether the previous magnetometer sample was rejected: the gate below may set it.)
+            was_disturbed = self.mag_disturbed
             if (lo2 <= mag_n2 <= hi2 and lo_dip <= sin_dip <= hi_dip) or self._mag_rejected(
                 dt, norm, sin_dip, me, mn, mu, gx - bx, gy - by, gz - bz
             ):
@@ -390,11 +392,15 @@ class QuaternionCcf(MagGate):
             else:
                 self.mag_disturbed = True
                 # Only runs of rejected samples count against steadiness, not single ones (a noisy magnetometer's
-                # outliers): the previous sample was rejected too.
-                t = self._t_last
-                if t - self._mag_rej_t <= 1.5 * dt:
-                    self._mag_steady_s -= STEADY_LOSS * dt
-                self._mag_rej_t = t
+                # outliers): when the previous magnetometer sample was rejected too, the time since it counts. Per
+                # magnetometer sample, not per IMU sample: a slower magnetometer's sample comes once (a missing one
+                # in between) or held with each IMU sample (the engine's pairing), whose copies have its norm.
+                if mag_n2 != self._mag_rej_n2:
+                    t = self._t_last
+                    if was_disturbed:
+                        self._mag_steady_s -= STEADY_LOSS * (t - self._mag_rej_t)
+                    self._mag_rej_t = t
+                    self._mag_rej_n2 = mag_n2
                 self._var_head = _drift(self._var_head, c.sigma_init * sqrt(self._kf.u) * dt, c.var_arw)
         else:
             self._var_head = _drift(self._var_head, c.sigma_init * sqrt(self._kf.u) * dt, c.var_arw)

@@ -36,6 +36,7 @@ class MagGate(OrientationFilter):
         '_mag_learn_s',
         '_mag_new_s',
         '_mag_ref',
+        '_mag_rej_n2',
         '_mag_rej_t',
         '_mag_rejected_t',
         '_mag_steady_s',
@@ -73,11 +74,12 @@ class MagGate(OrientationFilter):
         # The heading blend's gain relative to tau_mag_s's (1: the field is as steady as a homogeneous one).
         self._mag_weight = 1.0
         # A leaky timer of how long the field has steered heading, s: + the time of each block, - STEADY_LOSS x the
-        # time of each rejected sample that follows another, within [0, MAG_BAND_S[1]]. Below the top, the field has
+        # time between two magnetometer samples both rejected, within [0, MAG_BAND_S[1]]. Below the top, the field has
         # not shown long enough that it stays put for its heading error to teach the bias or re-acquire heading at
-        # once (see QuaternionCcf._step). And the stamp of the last rejected sample, s.
+        # once (see QuaternionCcf._step). And the stamp (s) and squared norm (sensor unit²) of the last rejected sample.
         self._mag_steady_s = 0.0
         self._mag_rej_t = -math.inf
+        self._mag_rej_n2 = -1.0
 
     def _bounds(self, norm: float, sin_dip: float) -> tuple[float, float, float, float]:
         """Acceptance bounds (squared norm, sin(dip)) around a field of ``norm`` and dip ``asin(sin_dip)``.
