@@ -334,7 +334,8 @@ class QuaternionCcf(MagGate):
             wn += mn
             wu += mu
             w_n += 1
-            # (Whether the previous magnetometer sample was rejected: the gate below may set it.)
+            # (Whether the previous magnetometer sample was rejected, read before the gate below may set it; an
+            # accepted sample leaves it False either way: _mag_rejected accepts only through _set_mag_reference.)
             was_disturbed = self.mag_disturbed
             if (lo2 <= mag_n2 <= hi2 and lo_dip <= sin_dip <= hi_dip) or self._mag_rejected(
                 dt, norm, sin_dip, me, mn, mu, gx - bx, gy - by, gz - bz
@@ -343,7 +344,7 @@ class QuaternionCcf(MagGate):
             else:
                 mag_ok = False
             if mag_ok:
-                if self.mag_disturbed:
+                if was_disturbed:
                     self.mag_disturbed = False
                 # Horizontal field in the world frame must point to +y (north in ENU). The correction is a rotation
                 # about world up (v in body coordinates): heading only, never tilt.
