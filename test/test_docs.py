@@ -88,3 +88,19 @@ def test_readme_keeps_the_generated_parameter_table_markers():
     readme = (ROOT / 'README.md').read_text(encoding='utf-8')
     begin, end = readme.find('<!-- parameters:begin'), readme.find('<!-- parameters:end -->')
     assert 0 < begin < end and '`tau_acc_s`' in readme[begin:end] and '|---|' in readme[begin:end]
+
+
+def test_the_issue_s_benchmark_path_runs_the_simulated_accuracy_script():
+    """`benchmarks/simulated_accuracy.py` (issue 23's name) runs `experiments/simulated_accuracy.py` with the same
+    arguments, from any working directory."""
+    import subprocess
+    import sys
+
+    def out(script: str) -> str:
+        r = subprocess.run([sys.executable, str(ROOT / script), '--help'], cwd=ROOT.parent, capture_output=True,
+                           text=True, timeout=60, check=True)
+        return r.stdout
+
+    text = out('experiments/simulated_accuracy.py')
+    assert 'magnetic environments' in text
+    assert out('benchmarks/simulated_accuracy.py') == text
