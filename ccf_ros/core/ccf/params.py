@@ -62,6 +62,9 @@ class CcfParams(CommonParams):
         'errors), rad/s', 0.0, 1e9, above=True)
     motion_bias: bool = param(True, '-', 'learn the gyro bias while moving (NCF integral)')
     rest_bias: bool = param(True, '-', 'learn the gyro bias from the gyro itself while at rest')
+    mag_bias: bool = param(
+        True, '-', "while moving, learn the gyro bias from the magnetometer's heading errors too (false: from gravity "
+        'and rests only, for a field that varies with position, e.g. steel beside the workspace)')
     rest_gyro_rad_s: float = param(
         2.0 * _DEG, 'rad/s', 'rest if the gyro stays within this of its low-pass, rad/s', 0.0, 1e9, above=True)
     rest_acc_m_s2: float = param(
