@@ -66,7 +66,7 @@ class EngineSettings:
         lengths=(3, 4), what='[roll, pitch, yaw] (rad) or a quaternion [x, y, z, w]')
     mag_rotation: tuple[float, ...] = param(
         (0.0, 0.0, 0.0), 'rad|quat', 'rotation of the magnetometer frame in the IMU frame (after '
-        'mag_bias/mag_soft_iron): [roll, pitch, yaw] rad or [x, y, z, w]',
+        'mag_bias_*/mag_soft_iron): [roll, pitch, yaw] rad or [x, y, z, w]',
         lengths=(3, 4), what='[roll, pitch, yaw] (rad) or a quaternion [x, y, z, w]')
     output_frame_id: str = param(
         '', '-', "header.frame_id of the output (imu/data, imu/gyro_bias, TF child); empty = the input's")

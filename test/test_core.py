@@ -1135,10 +1135,10 @@ def test_started_moving_in_a_turning_field_the_bias_does_not_learn_its_turn(mome
         assert m9 < 0.7 * m6, (m9, m6, measured)
 
 
-def test_without_mag_bias_the_magnetometer_holds_heading_but_never_teaches_the_bias():
+def test_without_bias_from_mag_the_magnetometer_holds_heading_but_never_teaches_the_bias():
     """Level turns back and forth (yaw rate 0.5 sin(0.5 t) rad/s, 100 Hz, 180 s, never at rest) with a gyro bias of
     0.3 °/s along world up, which gravity cannot see: by default the magnetometer's heading errors teach it; with
-    mag_bias false the bias stays unlearnt and the heading blend alone holds heading, lagging by bias x tau_mag_s."""
+    bias_from_mag false the bias stays unlearnt and the heading blend alone holds heading, lagging by bias x tau_mag_s."""
     from ccf_ros.core.metrics import error_angles
     from ccf_ros.core.quaternion import quat_conj, quat_from_rotvec
     from ccf_ros.offline.simulate import MAG_WORLD
@@ -1152,13 +1152,13 @@ def test_without_mag_bias_the_magnetometer_holds_heading_but_never_teaches_the_b
     mag = quat_rotate(quat_conj(q), MAG_WORLD) + rng.normal(0.0, 0.2e-6, (len(t), 3))
     late = t > 60.0
     heading = {}
-    for mag_bias in (True, False):
-        f = make_filter({'mag_bias': mag_bias})
+    for bias_from_mag in (True, False):
+        f = make_filter({'bias_from_mag': bias_from_mag})
         r = run_batch(f, t + 1.7e9, gyr, acc, mag)
-        heading[mag_bias] = np.degrees(np.abs(error_angles(r.quat, q)[1]))[late]
+        heading[bias_from_mag] = np.degrees(np.abs(error_angles(r.quat, q)[1]))[late]
         bz = math.degrees(f.gyro_bias[2])
         # Measured 0.304 °/s by default, 0.000 without.
-        assert abs(bz - 0.3) < 0.03 if mag_bias else abs(bz) < 0.01, (mag_bias, bz)
+        assert abs(bz - 0.3) < 0.03 if bias_from_mag else abs(bz) < 0.01, (bias_from_mag, bz)
     # Measured: at most 0.25° by default; without, RMS 4.49° against 0.3 °/s x 15 s = 4.5°.
     assert heading[True].max() < 0.3, heading[True].max()
     lag = 0.3 * CcfParams().tau_mag_s
@@ -1166,17 +1166,17 @@ def test_without_mag_bias_the_magnetometer_holds_heading_but_never_teaches_the_b
 
 
 @pytest.mark.parametrize(('orient', 'measured'), [('across', (4.09, 1.95, 2.00)), ('vertical', (3.79, 2.36, 2.00))])
-def test_started_moving_in_a_slowly_turning_field_mag_bias_false_keeps_9d_near_6d(orient, measured):
+def test_started_moving_in_a_slowly_turning_field_bias_from_mag_false_keeps_9d_near_6d(orient, measured):
     """A weak dipole (100 A m², 1.2 m: the field's direction spreads ~3-5° RMS) crossed slowly (~20 s a crossing),
     started while moving with a bias of σ 0.15 °/s (seeds 0-5 of `experiments/field_sweep.py --rest 0.5`'s '100/1.2
     across slow' and '100/1.2 vertical slow'): the field turns slower than the consistency band sees, and with the
     bias unknown it passes as homogeneous; by default its turns teach the bias (9-D 2° worse than 6-D), with
-    mag_bias false they cannot."""
+    bias_from_mag false they cannot."""
     slow = (0.022, 0.028)
     m9, m6 = _started_moving_in_a_dipole(100.0, 1.2, 0.15, range(6), orient=orient, band_hz=slow)
     off9, off6 = _started_moving_in_a_dipole(100.0, 1.2, 0.15, range(6), orient=orient, band_hz=slow,
-                                             settings={'mag_bias': False})
-    # Measured (9-D by default, 9-D with mag_bias false, 6-D): `measured`.
+                                             settings={'bias_from_mag': False})
+    # Measured (9-D by default, 9-D with bias_from_mag false, 6-D): `measured`.
     assert m9 > m6 + 1.0, (m9, m6, measured)  # the case: the field's turns taught the bias
     assert off9 < off6 + 0.5, (off9, off6, measured)
 

@@ -134,7 +134,7 @@ class _BlockCoefficients:
     wander_var: float
     drift_var: float
     motion_bias: bool
-    mag_bias: bool
+    bias_from_mag: bool
 
     @classmethod
     def of(cls, p: CcfParams, key: int) -> _BlockCoefficients:
@@ -176,7 +176,7 @@ class _BlockCoefficients:
             # constant (a ramp of rate r shows as r * MAG_BAND_S[1]), scaled by the bias's relative variance.
             drift_var=(2.0 * p.bias_sigma_init_rad_s * MAG_BAND_S[1]) ** 2,
             motion_bias=p.motion_bias,
-            mag_bias=p.mag_bias,
+            bias_from_mag=p.bias_from_mag,
         )
 
 

@@ -429,9 +429,9 @@ class QuaternionCcf(MagGate):
                 cb, blk_n, bx, by, bz, (r0x, r0y, r0z, r1x, r1y, r1z, vx, vy, vz), nx, ny, nz,
                 # The heading rows only from a field that has steered heading steadily for _STEADY_S: one that turns
                 # slowly through the check's allowance for a few seconds would teach the bias its turn, which nothing
-                # corrects while it is rejected afterwards. None at all without mag_bias.
+                # corrects while it is rejected afterwards. None at all without bias_from_mag.
                 (h_sum, h_n, self._mag_ref[1], self._mag_weight)
-                if h_n and steady >= _STEADY_S and cb.mag_bias else None,
+                if h_n and steady >= _STEADY_S and cb.bias_from_mag else None,
                 gx * gx + gy * gy + gz * gz,
                 # Not during the start-up (ni): the errors then are the initial attitude's, not the bias's; not at
                 # rest, where the low-passed gyro below is far more informative; not without an accelerometer.

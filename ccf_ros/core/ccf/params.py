@@ -62,7 +62,7 @@ class CcfParams(CommonParams):
         'errors), rad/s', 0.0, 1e9, above=True)
     motion_bias: bool = param(True, '-', 'learn the gyro bias while moving (NCF integral)')
     rest_bias: bool = param(True, '-', 'learn the gyro bias from the gyro itself while at rest')
-    mag_bias: bool = param(
+    bias_from_mag: bool = param(
         True, '-', "while moving, learn the gyro bias from the magnetometer's heading errors too (false: from gravity "
         'and rests only, for a field that varies with position, e.g. steel beside the workspace)')
     rest_gyro_rad_s: float = param(
