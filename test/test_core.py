@@ -1151,11 +1151,13 @@ def test_without_bias_from_mag_the_magnetometer_holds_heading_but_never_teaches_
     acc = quat_rotate(quat_conj(q), np.array([0.0, 0.0, 9.81])) + rng.normal(0.0, 0.02, (len(t), 3))
     mag = quat_rotate(quat_conj(q), MAG_WORLD) + rng.normal(0.0, 0.2e-6, (len(t), 3))
     late = t > 60.0
-    heading = {}
+    heading, sigma = {}, {}
     for bias_from_mag in (True, False):
         f = make_filter({'bias_from_mag': bias_from_mag})
         r = run_batch(f, t + 1.7e9, gyr, acc, mag)
         heading[bias_from_mag] = np.degrees(np.abs(error_angles(r.quat, q)[1]))[late]
+        sigma[bias_from_mag] = np.degrees(np.sqrt(np.mean(r.variance[late, 2])))
+        assert f.estimate()[1] == f.orientation_variance  # the engine's read and the property agree
         bz = math.degrees(f.gyro_bias[2])
         # Measured 0.304 °/s by default, 0.000 without.
         assert abs(bz - 0.3) < 0.03 if bias_from_mag else abs(bz) < 0.01, (bias_from_mag, bz)
@@ -1163,6 +1165,10 @@ def test_without_bias_from_mag_the_magnetometer_holds_heading_but_never_teaches_
     assert heading[True].max() < 0.3, heading[True].max()
     lag = 0.3 * CcfParams().tau_mag_s
     assert 0.8 * lag < np.sqrt(np.mean(heading[False] ** 2)) < 1.2 * lag, np.sqrt(np.mean(heading[False] ** 2))
+    # The reported yaw σ covers the lag: the bias's σ along world up (0.5 °/s, the prior: gravity sees only the
+    # horizontal) x tau_mag_s. Measured: 7.69° against the RMS 4.49° (1.71; 1.70° = 0.38 without the lag's share).
+    ratio = sigma[False] / np.sqrt(np.mean(heading[False] ** 2))
+    assert 1.0 < ratio < 2.0, (sigma, ratio)
 
 
 @pytest.mark.parametrize(('orient', 'measured'), [('across', (4.09, 1.95, 2.00)), ('vertical', (3.79, 2.36, 2.00))])
@@ -1174,11 +1180,11 @@ def test_started_moving_in_a_slowly_turning_field_bias_from_mag_false_keeps_9d_n
     bias_from_mag false they cannot."""
     slow = (0.022, 0.028)
     m9, m6 = _started_moving_in_a_dipole(100.0, 1.2, 0.15, range(6), orient=orient, band_hz=slow)
-    off9, off6 = _started_moving_in_a_dipole(100.0, 1.2, 0.15, range(6), orient=orient, band_hz=slow,
-                                             settings={'bias_from_mag': False})
+    off9, _ = _started_moving_in_a_dipole(100.0, 1.2, 0.15, range(6), orient=orient, band_hz=slow,
+                                          settings={'bias_from_mag': False})
     # Measured (9-D by default, 9-D with bias_from_mag false, 6-D): `measured`.
     assert m9 > m6 + 1.0, (m9, m6, measured)  # the case: the field's turns taught the bias
-    assert off9 < off6 + 0.5, (off9, off6, measured)
+    assert off9 < m6 + 0.5, (off9, m6, measured)
 
 
 @pytest.mark.parametrize(('every', 'mode'), [(1, ''), (5, 'missing'), (5, 'held'), (10, 'held')])

@@ -104,6 +104,7 @@ class QuaternionCcf(MagGate):
         '_coef_cache',
         '_coef_prev',
         '_gyro_lp',
+        '_head_lag_tau2',
         '_head_var',
         '_heading_known',
         '_incl_var',
@@ -135,6 +136,10 @@ class QuaternionCcf(MagGate):
         p = self.params
         self._incl_var = p.incl_sigma_rad * p.incl_sigma_rad
         self._head_var = p.heading_sigma_rad * p.heading_sigma_rad
+        # Without bias_from_mag the heading blend is proportional only (no integral on heading): a bias error e along
+        # world up leaves heading behind by e x tau_mag_s while the field holds it, so its variance adds tau_mag_s²
+        # times the bias's variance along up (s²; 0: the heading rows remove that lag, as an integral does).
+        self._head_lag_tau2 = 0.0 if p.bias_from_mag else p.tau_mag_s * p.tau_mag_s
 
     @property
     def raw_clip_check(self) -> bool:
@@ -710,7 +715,20 @@ class QuaternionCcf(MagGate):
         """Variance of roll, pitch, yaw errors, rad² (yaw relative to the start without a magnetometer)."""
         vi = self._incl_var + self._var_incl
         vh = self._var_head + (self._head_var if self._heading_known else 0.0)
+        if self._head_lag_tau2 and self._heading_known:
+            vh += self._heading_lag_var()
         return (vi, vi, vh)
+
+    def _heading_lag_var(self) -> float:
+        """Variance (rad²) of the heading blend's lag behind the bias error along world up (``bias_from_mag`` false)."""
+        qw, qx, qy, qz = self._q
+        # World up in body coordinates (the body->world matrix's third row) and the bias covariance along it.
+        ux = 2.0 * (qx * qz - qw * qy)
+        uy = 2.0 * (qy * qz + qw * qx)
+        uz = 1.0 - 2.0 * (qx * qx + qy * qy)
+        p00, p01, p02, p11, p12, p22 = self._kf.p
+        var_up = (ux * (p00 * ux + 2.0 * (p01 * uy + p02 * uz)) + uy * (p11 * uy + 2.0 * p12 * uz) + p22 * uz * uz)
+        return self._head_lag_tau2 * var_up
 
     def estimate(self) -> tuple[Quat, tuple[float, float, float], tuple[float, float, float]]:
         """:attr:`quaternion`, :attr:`orientation_variance` and :attr:`gyro_bias` in one call (the three properties'
@@ -718,6 +736,8 @@ class QuaternionCcf(MagGate):
         x = self._x
         vi = self._incl_var + self._var_incl
         vh = self._var_head + (self._head_var if self._heading_known else 0.0)
+        if self._head_lag_tau2 and self._heading_known:
+            vh += self._heading_lag_var()
         return (self._q if self._identity_frame else quat_mul_scalar(self._frame, self._q), (vi, vi, vh),
                 (x[_I_BIAS], x[_I_BIAS + 1], x[_I_BIAS + 2]))
 
