@@ -17,6 +17,7 @@ from .params import (
     CLIP_FRACTION,
     GRAVITY_M_S2,
     MAG_BAND_S,
+    MAG_REJECT_SIGMAS,
     REST_BIAS_TOL_RAD_S,
     REST_RELEARN_S,
     CcfParams,
@@ -28,6 +29,8 @@ _PI = math.pi
 _INF = math.inf
 _TWO_PI = 2.0 * math.pi
 _INV_G = 1.0 / GRAVITY_M_S2
+#: The smallest weight of a field still blended (MagGate rejects it beyond MAG_REJECT_SIGMAS of its wander).
+_W_BLENDED_MIN = 1.0 / MAG_REJECT_SIGMAS
 #: Largest NCF heading error the bias estimate uses, rad (see _step).
 _HEAD_ERR_MAX = 5.0 * _DEG
 _HEAD_ERR_MAX2 = _HEAD_ERR_MAX * _HEAD_ERR_MAX
@@ -136,10 +139,11 @@ class QuaternionCcf(MagGate):
         p = self.params
         self._incl_var = p.incl_sigma_rad * p.incl_sigma_rad
         self._head_var = p.heading_sigma_rad * p.heading_sigma_rad
-        # Without bias_from_mag the heading blend is proportional only (no integral on heading): a bias error e along
-        # world up leaves heading behind by e x tau_mag_s while the field holds it, so its variance adds tau_mag_s²
-        # times the bias's variance along up (s²; 0: the heading rows remove that lag, as an integral does).
-        self._head_lag_tau2 = 0.0 if p.bias_from_mag else p.tau_mag_s * p.tau_mag_s
+        # Without the bias's heading rows (bias_from_mag or motion_bias false) the heading blend is proportional only
+        # (no integral on heading while moving): a bias error e along world up leaves heading behind by e x tau_mag_s
+        # (/ the field's weight), which carries on while the field is rejected, so the heading variance adds
+        # tau_mag_s² times the bias's variance along up (s²; 0: the heading rows remove that lag, as an integral does).
+        self._head_lag_tau2 = 0.0 if p.bias_from_mag and p.motion_bias else p.tau_mag_s * p.tau_mag_s
 
     @property
     def raw_clip_check(self) -> bool:
@@ -720,7 +724,7 @@ class QuaternionCcf(MagGate):
         return (vi, vi, vh)
 
     def _heading_lag_var(self) -> float:
-        """Variance (rad²) of the heading blend's lag behind the bias error along world up (``bias_from_mag`` false)."""
+        """Variance (rad²) of the heading blend's lag behind the bias error along world up (without the heading rows)."""
         qw, qx, qy, qz = self._q
         # World up in body coordinates (the body->world matrix's third row) and the bias covariance along it.
         ux = 2.0 * (qx * qz - qw * qy)
@@ -728,7 +732,12 @@ class QuaternionCcf(MagGate):
         uz = 1.0 - 2.0 * (qx * qx + qy * qy)
         p00, p01, p02, p11, p12, p22 = self._kf.p
         var_up = (ux * (p00 * ux + 2.0 * (p01 * uy + p02 * uz)) + uy * (p11 * uy + 2.0 * p12 * uz) + p22 * uz * uz)
-        return self._head_lag_tau2 * var_up
+        # A field that wanders is blended with its weight w (< 1): the blend's time constant is tau_mag_s / w. A
+        # rejected field's weight can be smaller, but then it is not blended: the lag is what its last use left.
+        w = self._mag_weight
+        if w < _W_BLENDED_MIN:
+            w = _W_BLENDED_MIN
+        return self._head_lag_tau2 * var_up / (w * w)
 
     def estimate(self) -> tuple[Quat, tuple[float, float, float], tuple[float, float, float]]:
         """:attr:`quaternion`, :attr:`orientation_variance` and :attr:`gyro_bias` in one call (the three properties'
