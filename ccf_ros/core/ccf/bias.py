@@ -37,6 +37,11 @@ class BiasKalman:
         self.p = (var, 0.0, 0.0, var, 0.0, var)
         self.u = u
 
+    def variance_along(self, x: float, y: float, z: float) -> float:
+        """The bias's variance along the unit vector ``(x, y, z)`` (body), (rad/s)²: ``vᵀ P v``."""
+        p00, p01, p02, p11, p12, p22 = self.p
+        return x * (p00 * x + 2.0 * (p01 * y + p02 * z)) + y * (p11 * y + 2.0 * p12 * z) + p22 * z * z
+
     def update(
         self,
         c: _BlockCoefficients,

@@ -726,12 +726,9 @@ class QuaternionCcf(MagGate):
     def _heading_lag_var(self) -> float:
         """Variance (rad²) of the heading blend's lag behind the bias error along world up (without the heading rows)."""
         qw, qx, qy, qz = self._q
-        # World up in body coordinates (the body->world matrix's third row) and the bias covariance along it.
-        ux = 2.0 * (qx * qz - qw * qy)
-        uy = 2.0 * (qy * qz + qw * qx)
-        uz = 1.0 - 2.0 * (qx * qx + qy * qy)
-        p00, p01, p02, p11, p12, p22 = self._kf.p
-        var_up = (ux * (p00 * ux + 2.0 * (p01 * uy + p02 * uz)) + uy * (p11 * uy + 2.0 * p12 * uz) + p22 * uz * uz)
+        # World up in body coordinates: the body->world matrix's third row.
+        var_up = self._kf.variance_along(
+            2.0 * (qx * qz - qw * qy), 2.0 * (qy * qz + qw * qx), 1.0 - 2.0 * (qx * qx + qy * qy))
         # A field that wanders is blended with its weight w (< 1): the blend's time constant is tau_mag_s / w. A
         # rejected field's weight can be smaller, but then it is not blended: the lag is what its last use left.
         w = self._mag_weight
