@@ -14,6 +14,7 @@ import pytest
 
 from ccf_ros.core import CcfParams, EulerCcf, EulerCcfParams, QuaternionCcf, Status, make_filter, run_batch
 from ccf_ros.core.ccf.discretisation import _bin, _Coefficients
+from ccf_ros.core.ccf.mag_gate import MagGate
 from ccf_ros.core.metrics import summarize
 from ccf_ros.core.quaternion import WORLD_FRAMES, quat_mul, quat_rotate
 from ccf_ros.offline.simulate import generate
@@ -79,8 +80,7 @@ def test_reset_equals_fresh_instance(sim):
     # The magnetometer gate's state too (a stale timer or band would show only in a field that turns).
     f.reset()
     fresh = QuaternionCcf()
-    for name in ('_mag_steady_s', '_mag_rej_t', '_mag_rej_n2', '_mag_u', '_mag_band', '_mag_band_t', '_mag_weight',
-                 '_mag_consistent', '_mag_candidate', '_mag_ref', '_var_head'):
+    for name in MagGate.__slots__:
         assert getattr(f, name) == getattr(fresh, name), name
 
 
@@ -1099,12 +1099,12 @@ def _started_moving_in_a_dipole(moment: float, dist_m: float, bias_deg_s: float,
     return float(m9), float(m6)
 
 
-@pytest.mark.parametrize(('moment', 'dist_m', 'seed', 'measured'), [(600.0, 1.2, 8, (6.41, 14.98)),
-                                                                     (3000.0, 1.5, 7, (4.21, 10.11))])
+@pytest.mark.parametrize(('moment', 'dist_m', 'seed', 'measured'), [(600.0, 1.2, 8, (5.78, 14.98)),
+                                                                     (3000.0, 1.5, 7, (2.62, 10.11))])
 def test_started_moving_in_a_turning_field_a_heading_re_acquired_weighs_it_as_the_blend(moment, dist_m, seed, measured):
     """Started while moving with a bias of σ 0.5 °/s per axis (the 6-D heading drifts) through a field that turns:
     the magnetometer still helps, because a heading re-acquired after the field was weighted down takes it with the
-    blend's weight (without: 9-D 8.72 and 7.30). '600/1.2 across' seed 8 and '3000/1.5 across' seed 7 of
+    blend's weight (without, before the band's curvature was judged: 9-D 8.72 and 7.30). '600/1.2 across' seed 8 and '3000/1.5 across' seed 7 of
     `experiments/field_sweep.py --rest 0.5`."""
     m9, m6 = _started_moving_in_a_dipole(moment, dist_m, 0.5, [seed])
     # Measured (9-D, 6-D): `measured`.
@@ -1112,11 +1112,11 @@ def test_started_moving_in_a_turning_field_a_heading_re_acquired_weighs_it_as_th
 
 
 @pytest.mark.parametrize(('moment', 'dist_m', 'bias_deg_s', 'mag', 'measured', 'before'), [
-    (300.0, 1.2, 0.15, (1, ''), (3.23, 2.65), (5.11, 2.65)),
-    (300.0, 1.2, 0.15, (4, 'missing'), (3.22, 2.65), (4.39, 2.65)),
-    (300.0, 1.2, 0.15, (4, 'held'), (3.25, 2.65), (5.07, 2.65)),
-    (3000.0, 1.5, 0.5, (1, ''), (2.98, 4.97), (3.97, 4.97)),
-    (600.0, 1.2, 0.5, (1, ''), (3.04, 4.97), (5.02, 4.97)),
+    (300.0, 1.2, 0.15, (1, ''), (2.95, 2.65), (5.11, 2.65)),
+    (300.0, 1.2, 0.15, (4, 'missing'), (2.39, 2.65), (4.39, 2.65)),
+    (300.0, 1.2, 0.15, (4, 'held'), (2.91, 2.65), (5.07, 2.65)),
+    (3000.0, 1.5, 0.5, (1, ''), (2.82, 4.97), (3.97, 4.97)),
+    (600.0, 1.2, 0.5, (1, ''), (2.90, 4.97), (5.02, 4.97)),
 ])
 def test_started_moving_in_a_turning_field_the_bias_does_not_learn_its_turn(moment, dist_m, bias_deg_s, mag, measured,
                                                                              before):
@@ -1133,6 +1133,22 @@ def test_started_moving_in_a_turning_field_the_bias_does_not_learn_its_turn(mome
         assert m9 < m6 + 0.7, (m9, m6, measured)
     else:
         assert m9 < 0.7 * m6, (m9, m6, measured)
+
+
+@pytest.mark.parametrize(('moment', 'measured', 'before'), [(600.0, (2.87, 2.65), (3.29, 2.65)),
+                                                            (1000.0, (2.97, 2.65), (3.24, 2.65))])
+def test_started_moving_in_a_wandering_field_its_curvature_rejects_it_while_the_bias_is_unknown(moment, measured,
+                                                                                                 before):
+    """Started while moving with a bias of σ 0.15 °/s (seeds 0-5 of `experiments/field_sweep.py --rest 0.5`'s
+    '600/1.2 across' and '1000/1.2 across': the field's direction spreads 20-25° RMS as the hand wanders through it).
+    Until the bias is learnt, the consistency band allows for the drift it may give the attitude (~8° RMS over the
+    band), and the field passed while it turned by tens of degrees. The band's curvature does not see a drift at a
+    steady rate, so it is held to the homogeneous field's wander alone (and the change of rate while the bias is
+    learnt): the field is weighted down from the start. Before (`before`: 9-D, 6-D) the 9-D heading was 0.6° worse
+    than the 6-D's."""
+    m9, m6 = _started_moving_in_a_dipole(moment, 1.2, 0.15, range(6))
+    # Measured (9-D, 6-D): `measured`.
+    assert m9 < m6 + 0.5, (m9, m6, measured)
 
 
 def test_without_bias_from_mag_the_magnetometer_holds_heading_but_never_teaches_the_bias():
@@ -1174,7 +1190,7 @@ def test_without_bias_from_mag_the_magnetometer_holds_heading_but_never_teaches_
         assert 1.0 < sigma / rms < 2.0, (settings, sigma, rms)
 
 
-@pytest.mark.parametrize(('orient', 'measured'), [('across', (4.09, 1.95, 2.00)), ('vertical', (3.79, 2.36, 2.00))])
+@pytest.mark.parametrize(('orient', 'measured'), [('across', (3.90, 1.95, 2.00)), ('vertical', (3.22, 2.14, 2.00))])
 def test_started_moving_in_a_slowly_turning_field_bias_from_mag_false_keeps_9d_near_6d(orient, measured):
     """A weak dipole (100 A m², 1.2 m: the field's direction spreads ~3-5° RMS) crossed slowly (~20 s a crossing),
     started while moving with a bias of σ 0.15 °/s (seeds 0-5 of `experiments/field_sweep.py --rest 0.5`'s '100/1.2

@@ -133,6 +133,7 @@ class _BlockCoefficients:
     k_score: float
     wander_var: float
     drift_var: float
+    drift_curve_var: float
     motion_bias: bool
     bias_from_mag: bool
 
@@ -175,6 +176,9 @@ class _BlockCoefficients:
             # ... plus the attitude's drift from a bias error of bias_sigma_init over the band-pass's long time
             # constant (a ramp of rate r shows as r * MAG_BAND_S[1]), scaled by the bias's relative variance.
             drift_var=(2.0 * p.bias_sigma_init_rad_s * MAG_BAND_S[1]) ** 2,
+            # ... or, for the band's curvature, from a bias error of that size learnt: a step of rate r shows at
+            # most as r * MAG_BAND_S[1] / e (t exp(-t / MAG_BAND_S[1]) at t = MAG_BAND_S[1]); a steady rate not at all.
+            drift_curve_var=(2.0 * p.bias_sigma_init_rad_s * MAG_BAND_S[1] / math.e) ** 2,
             motion_bias=p.motion_bias,
             bias_from_mag=p.bias_from_mag,
         )

@@ -21,6 +21,23 @@ STEADY_LOSS = 1.0 + _LEAK
 _REJECT2 = MAG_REJECT_SIGMAS**2
 
 
+def _turned(x: float, y: float, z: float, ce: float, cn: float, cu: float) -> tuple[float, float, float]:
+    """``(x, y, z)`` turned by the rotation vector ``(ce, cn, cu)`` (rad; Rodrigues' formula)."""
+    t2 = ce * ce + cn * cn + cu * cu
+    if t2 < 1e-8:
+        # sin(t)/t and (1 - cos(t))/t² to well below 1e-16 for |t| < 1e-4.
+        s, k = 1.0 - t2 / 6.0, 0.5 - t2 / 24.0
+    else:
+        t = sqrt(t2)
+        s, k = math.sin(t) / t, (1.0 - math.cos(t)) / t2
+    px, py, pz = cn * z - cu * y, cu * x - ce * z, ce * y - cn * x
+    return (
+        x + s * px + k * (cn * pz - cu * py),
+        y + s * py + k * (cu * px - ce * pz),
+        z + s * pz + k * (ce * py - cn * px),
+    )
+
+
 class MagGate(OrientationFilter):
     """The gate's state and rare paths (a base of :class:`~ccf_ros.core.ccf.QuaternionCcf`, which owns the
     coefficients, the bias filter and the heading variance it reads)."""
@@ -31,6 +48,7 @@ class MagGate(OrientationFilter):
         '_mag_bounds',
         '_mag_candidate',
         '_mag_consistent',
+        '_mag_curve',
         '_mag_have_ref',
         '_mag_learn_n',
         '_mag_learn_s',
@@ -68,6 +86,10 @@ class MagGate(OrientationFilter):
         # None: seeded by the next block), and the verdict.
         self._mag_band: tuple[float, ...] | None = None
         self._mag_band_t = -math.inf
+        # The band's ramp-free part: a third low-pass f (of the second, MAG_BAND_S[1]) and the squared deviation's
+        # low-pass of (a - b) - (b - f), which is zero for a direction that turns at a constant rate (None: seeded
+        # with the band).
+        self._mag_curve: tuple[float, ...] | None = None
         self._mag_consistent = True
         # The bias's relative uncertainty the verdict allows for: the largest over the band's memory (see below).
         self._mag_u = 0.0
@@ -126,7 +148,9 @@ class MagGate(OrientationFilter):
         changes in time moves. The direction's band-pass between ``MAG_BAND_S`` (its deviation RMS over
         ``MAG_SCORE_S``) against ``mag_consistency_rad`` (with hysteresis: half of it to become consistent again)
         decides whether the field may steer heading (and the bias estimate) at all; agreement of norm and dip with
-        a reference cannot see a field that turns.
+        a reference cannot see a field that turns. The band's curvature (its ramp-free part) is judged beside it
+        with a far smaller allowance for the bias: an unknown bias turns the attitude at a steady rate, a field that
+        varies with position turns it back and forth as the sensor moves about.
         """
         c = self._bcoef
         n = sqrt(we * we + wn * wn + wu * wu)
@@ -143,17 +167,37 @@ class MagGate(OrientationFilter):
         band = self._mag_band
         t_now = self._t_last
         gap = t_now - self._mag_band_t > MAG_BAND_S[0]
+        curve = self._mag_curve
+        if ce * ce + cn * cn + cu * cu > c.wander_var:
+            # The LCF turned the attitude by more than a homogeneous field wanders within this block (a heading
+            # re-acquired: a start, a new field, a heading set): its samples, summed through the attitude before and
+            # after the turn, give no one direction (seeded from them, the band read a 0.5 rad turn as 7° of the
+            # field's motion for its 8 s). The filters are turned with it; nothing is filtered in.
+            if band is not None and not gap:
+                ae, an, au, be, bn, bu, s2 = band
+                self._mag_band = (*_turned(ae, an, au, ce, cn, cu), *_turned(be, bn, bu, ce, cn, cu), s2)
+                if curve is not None:
+                    fe, fn, fu, s2c = curve
+                    self._mag_curve = (*_turned(fe, fn, fu, ce, cn, cu), s2c)
+                self._mag_band_t = t_now
+            return
         self._mag_band_t = t_now
         if band is None or gap:
             # First, or after the field was rejected for a while (the gyro drifted meanwhile): the direction's
-            # filters start again from here; the wander score keeps its memory.
+            # filters start again from here; the wander scores keep their memory.
             self._mag_band = (ue, un, uu, ue, un, uu, 0.0 if band is None else band[6])
+            self._mag_curve = (ue, un, uu, 0.0 if curve is None else curve[3])
             return
         ae, an, au, be, bn, bu, s2 = band
+        # (None: the band was just handed over by a new field, see _mag_rejected.)
+        fe, fn, fu, s2c = (be, bn, bu, 0.0) if curve is None else curve
         # The LCF's corrections turned the field seen through the attitude by (ce, cn, cu): turn the filters' states
-        # with them (first order), so that only the field's own motion shows.
-        ae, an, au = ae + (cn * au - cu * an), an + (cu * ae - ce * au), au + (ce * an - cn * ae)
-        be, bn, bu = be + (cn * bu - cu * bn), bn + (cu * be - ce * bu), bu + (ce * bn - cn * be)
+        # with them, so that only the field's own motion shows. Exactly, not to first order: a heading re-acquired
+        # (a start, a new field, a heading set) turns by up to 180° in one block, and a first-order turn by 0.5 rad
+        # leaves the states 2° and 12 % off, which the band then reads as the field's motion for its 8 s.
+        ae, an, au = _turned(ae, an, au, ce, cn, cu)
+        be, bn, bu = _turned(be, bn, bu, ce, cn, cu)
+        fe, fn, fu = _turned(fe, fn, fu, ce, cn, cu)
         k1, k2 = c.k_band1, c.k_band2
         ae += k1 * (ue - ae)
         an += k1 * (un - an)
@@ -164,10 +208,23 @@ class MagGate(OrientationFilter):
         de, dn_, du = ae - be, an - bn, au - bu
         s2 += c.k_score * (de * de + dn_ * dn_ + du * du - s2)
         self._mag_band = (ae, an, au, be, bn, bu, s2)
+        fe += k2 * (be - fe)
+        fn += k2 * (bn - fn)
+        fu += k2 * (bu - fu)
+        de, dn_, du = de - (be - fe), dn_ - (bn - fn), du - (bu - fu)
+        s2c += c.k_score * (de * de + dn_ * dn_ + du * du - s2c)
+        self._mag_curve = (fe, fn, fu, s2c)
         # The heading reference is as noisy as the field wanders: the blend's time constant (and the bias estimate's
         # heading noise) grows with the wander beyond a homogeneous field's, which includes the drift an unknown
         # bias gives the attitude.
         r2 = s2 / (c.wander_var + c.drift_var * mu)
+        # The same from the curvature: a drift at a steady rate leaves none, only the change of rate while the bias
+        # is learnt (allowed for in drift_curve_var), so a field that wanders as the sensor moves shows against the
+        # homogeneous field's wander alone while the bias is still unknown (after a start while moving), where the
+        # band's allowance for its drift lets a field through that turns by tens of degrees.
+        r2c = s2c / (c.wander_var + c.drift_curve_var * mu)
+        if r2c > r2:
+            r2 = r2c
         self._mag_weight = 1.0 / sqrt(r2) if r2 > 1.0 else 1.0
         if self._mag_consistent:
             if r2 > _REJECT2:
@@ -243,6 +300,7 @@ class MagGate(OrientationFilter):
                 self._set_mag_reference(cn, cs, learn=False)
                 # Its verdict carries over: it stayed put while timed.
                 self._mag_band = band
+                self._mag_curve = None
                 self._mag_band_t = t
                 self._mag_consistent = True
                 self._mag_weight = 1.0
