@@ -226,8 +226,9 @@ def test_set_heading_in_9d_before_the_magnetometer_gave_north_is_kept_once_it_do
         if i >= 200:
             err[i] = math.degrees(math.remainder(_yaw(out) - turned[i] - ref, 2 * math.pi))
     assert eng.filter.flags.heading_absolute and abs(eng.heading_offset_rad) > 0.4
-    # Measured: 0.03° up to 1 s after the field arrived; at most 1.54° later (the gyro carries it for tau_mag_s, 1°/s
-    # turn partly taken for bias meanwhile, as in 6-D), then the offset stays.
+    # Measured: 0.04° up to 1 s after the field arrived; at most 1.59° later (the gyro carries it for tau_mag_s, 1°/s
+    # turn partly taken for bias meanwhile, as in 6-D), then the offset stays. (1.71° while the field's consistency
+    # band still read the acquisition's step as the field's motion and weighted it down to 0.27 for 20 s.)
     assert np.abs(err[200:400]).max() < 0.1, np.abs(err[200:400]).max()
     assert np.abs(err[400:]).max() < 1.85, np.abs(err[400:]).max()
     eng.reset()  # the offset goes with the estimate
