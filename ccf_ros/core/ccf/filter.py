@@ -34,6 +34,8 @@ _W_BLENDED_MIN = 1.0 / MAG_REJECT_SIGMAS
 #: Largest NCF heading error the bias estimate uses, rad (see _step).
 _HEAD_ERR_MAX = 5.0 * _DEG
 _HEAD_ERR_MAX2 = _HEAD_ERR_MAX * _HEAD_ERR_MAX
+#: A heading correction larger than this (rad, squared) turns the field summed for the consistency check so far.
+_TURN_SUM2 = 1e-6
 #: Due at this span (s), so that rounding in the stamps' differences does not make a block of exactly 0.04 s wait
 #: for another sample.
 _BLOCK_DUE_S = BIAS_UPDATE_PERIOD_S * (1.0 - 1e-6)
@@ -384,6 +386,13 @@ class QuaternionCcf(MagGate):
                     self._var_head = vh if vh > 1e-14 else 0.0
                     self._heading_known = True
                 kd = kh * d
+                if kd * kd > _TURN_SUM2:
+                    # A large correction (heading re-acquired, the start-up's running mean): the field summed this
+                    # block so far, seen through the attitude before it, turns with it, so that the block's mean is
+                    # one direction (else a 0.5 rad re-acquisition seeded the band 7° off, and it read that as the
+                    # field's motion for its 8 s). Steady corrections are ~1e-5 rad: none of this.
+                    cs, sn = cos(kd), sin(kd)
+                    we, wn = cs * we - sn * wn, sn * we + cs * wn
                 # NCF heading error (its heading is the LCF's turned by dnz about world up). Its own heading takes
                 # all of it; the bias estimate only what is within ±_HEAD_ERR_MAX while the two stages' headings
                 # agree within it too. A larger error, or a larger dnz, means the heading has not converged yet (a
@@ -771,8 +780,12 @@ class QuaternionCcf(MagGate):
 
     def _rotate_about_up(self, angle_rad: float) -> None:
         """:meth:`OrientationFilter.set_heading`'s turn: the LCF orientation and the NCF offset ``dn`` (world frame)
-        turn together, so the cascade sees no step (body-frame state: bias, filtered gravity, unchanged)."""
+        turn together, so the cascade sees no step (body-frame state: bias, filtered gravity, unchanged); so do the
+        magnetometer gate's world-frame filters and this block's field sum, so that the field does not look as if it
+        moved."""
         super()._rotate_about_up(angle_rad)
         c, s = math.cos(angle_rad), math.sin(angle_rad)
         x = CcfState._make(self._x)
-        self._x = tuple(x._replace(dn_e=c * x.dn_e - s * x.dn_n, dn_n=s * x.dn_e + c * x.dn_n))
+        self._x = tuple(x._replace(dn_e=c * x.dn_e - s * x.dn_n, dn_n=s * x.dn_e + c * x.dn_n,
+                                   field_e=c * x.field_e - s * x.field_n, field_n=s * x.field_e + c * x.field_n))
+        self._turn_mag_about_up(c, s)

@@ -103,6 +103,19 @@ class MagGate(OrientationFilter):
         self._mag_rej_t = -math.inf
         self._mag_rej_n2 = -1.0
 
+    def _turn_mag_about_up(self, c: float, s: float) -> None:
+        """The gate's world-frame state turned about up by the angle of cosine ``c`` and sine ``s`` (the attitude is
+        turned so: a heading set), so that the field seen through the attitude does not look as if it moved."""
+        if self._mag_band is not None:
+            ae, an, au, be, bn, bu, s2 = self._mag_band
+            self._mag_band = (c * ae - s * an, s * ae + c * an, au, c * be - s * bn, s * be + c * bn, bu, s2)
+        if self._mag_curve is not None:
+            fe, fn, fu, s2c = self._mag_curve
+            self._mag_curve = (c * fe - s * fn, s * fe + c * fn, fu, s2c)
+        cn, cs, n, turn, (ae, an, au, be, bn, bu, s2) = self._mag_candidate
+        self._mag_candidate = (cn, cs, n, turn, (c * ae - s * an, s * ae + c * an, au, c * be - s * bn, s * be + c * bn,
+                                                  bu, s2))
+
     def _bounds(self, norm: float, sin_dip: float) -> tuple[float, float, float, float]:
         """Acceptance bounds (squared norm, sin(dip)) around a field of ``norm`` and dip ``asin(sin_dip)``.
 
@@ -167,21 +180,8 @@ class MagGate(OrientationFilter):
         band = self._mag_band
         t_now = self._t_last
         gap = t_now - self._mag_band_t > MAG_BAND_S[0]
-        curve = self._mag_curve
-        if ce * ce + cn * cn + cu * cu > c.wander_var:
-            # The LCF turned the attitude by more than a homogeneous field wanders within this block (a heading
-            # re-acquired: a start, a new field, a heading set): its samples, summed through the attitude before and
-            # after the turn, give no one direction (seeded from them, the band read a 0.5 rad turn as 7° of the
-            # field's motion for its 8 s). The filters are turned with it; nothing is filtered in.
-            if band is not None and not gap:
-                ae, an, au, be, bn, bu, s2 = band
-                self._mag_band = (*_turned(ae, an, au, ce, cn, cu), *_turned(be, bn, bu, ce, cn, cu), s2)
-                if curve is not None:
-                    fe, fn, fu, s2c = curve
-                    self._mag_curve = (*_turned(fe, fn, fu, ce, cn, cu), s2c)
-                self._mag_band_t = t_now
-            return
         self._mag_band_t = t_now
+        curve = self._mag_curve
         if band is None or gap:
             # First, or after the field was rejected for a while (the gyro drifted meanwhile): the direction's
             # filters start again from here; the wander scores keep their memory.
@@ -193,8 +193,8 @@ class MagGate(OrientationFilter):
         fe, fn, fu, s2c = (be, bn, bu, 0.0) if curve is None else curve
         # The LCF's corrections turned the field seen through the attitude by (ce, cn, cu): turn the filters' states
         # with them, so that only the field's own motion shows. Exactly, not to first order: a heading re-acquired
-        # (a start, a new field, a heading set) turns by up to 180° in one block, and a first-order turn by 0.5 rad
-        # leaves the states 2° and 12 % off, which the band then reads as the field's motion for its 8 s.
+        # (a new field) turns by up to 180° in one block, and a first-order turn by 0.5 rad leaves the states 2° and
+        # 12 % off, which the band then reads as the field's motion for its 8 s.
         ae, an, au = _turned(ae, an, au, ce, cn, cu)
         be, bn, bu = _turned(be, bn, bu, ce, cn, cu)
         fe, fn, fu = _turned(fe, fn, fu, ce, cn, cu)
