@@ -390,7 +390,9 @@ class QuaternionCcf(MagGate):
                     # A large correction (heading re-acquired, the start-up's running mean): the field summed this
                     # block so far, seen through the attitude before it, turns with it, so that the block's mean is
                     # one direction (else a 0.5 rad re-acquisition seeded the band 7° off, and it read that as the
-                    # field's motion for its 8 s). Steady corrections are ~1e-5 rad: none of this.
+                    # field's motion for its 8 s). Steady corrections are ~1e-5 rad at 100 Hz; at a few Hz, or with a
+                    # noisy magnetometer, an occasional sample takes this too (exactly, and at the cost of a cos and
+                    # a sin).
                     cs, sn = cos(kd), sin(kd)
                     we, wn = cs * we - sn * wn, sn * we + cs * wn
                 # NCF heading error (its heading is the LCF's turned by dnz about world up). Its own heading takes
