@@ -10,7 +10,7 @@ from ..base import CommonParams
 from ..quaternion import Quat, level_quat, quat_from_acc_mag_scalar, quat_mul_scalar, relevel
 from .bias import BiasKalman
 from .discretisation import _BlockCoefficients, _cached, _Coefficients
-from .mag_gate import STEADY_LOSS, MagGate
+from .mag_gate import STEADY_LOSS, MagGate, about_up
 from .params import (
     _DEG,
     BIAS_UPDATE_PERIOD_S,
@@ -393,8 +393,7 @@ class QuaternionCcf(MagGate):
                     # field's motion for its 8 s). Steady corrections are ~1e-5 rad at 100 Hz; at a few Hz, or with a
                     # noisy magnetometer, an occasional sample takes this too (exactly, and at the cost of a cos and
                     # a sin).
-                    cs, sn = cos(kd), sin(kd)
-                    we, wn = cs * we - sn * wn, sn * we + cs * wn
+                    we, wn = about_up(cos(kd), sin(kd), we, wn)
                 # NCF heading error (its heading is the LCF's turned by dnz about world up). Its own heading takes
                 # all of it; the bias estimate only what is within ±_HEAD_ERR_MAX while the two stages' headings
                 # agree within it too. A larger error, or a larger dnz, means the heading has not converged yet (a
@@ -788,6 +787,6 @@ class QuaternionCcf(MagGate):
         super()._rotate_about_up(angle_rad)
         c, s = math.cos(angle_rad), math.sin(angle_rad)
         x = CcfState._make(self._x)
-        self._x = tuple(x._replace(dn_e=c * x.dn_e - s * x.dn_n, dn_n=s * x.dn_e + c * x.dn_n,
-                                   field_e=c * x.field_e - s * x.field_n, field_n=s * x.field_e + c * x.field_n))
+        (dn_e, dn_n), (field_e, field_n) = about_up(c, s, x.dn_e, x.dn_n), about_up(c, s, x.field_e, x.field_n)
+        self._x = tuple(x._replace(dn_e=dn_e, dn_n=dn_n, field_e=field_e, field_n=field_n))
         self._turn_mag_about_up(c, s)

@@ -21,8 +21,9 @@ STEADY_LOSS = 1.0 + _LEAK
 _REJECT2 = MAG_REJECT_SIGMAS**2
 
 
-def _turned(x: float, y: float, z: float, ce: float, cn: float, cu: float) -> tuple[float, float, float]:
-    """``(x, y, z)`` turned by the rotation vector ``(ce, cn, cu)`` (rad; Rodrigues' formula)."""
+def _turned(ce: float, cn: float, cu: float, v: tuple[float, ...]) -> tuple[float, ...]:
+    """``v``, consecutive (east, north, up) vectors, each turned by the rotation vector ``(ce, cn, cu)`` (rad;
+    Rodrigues' formula)."""
     t2 = ce * ce + cn * cn + cu * cu
     if t2 < 1e-8:
         # sin(t)/t and (1 - cos(t))/t² to well below 1e-16 for |t| < 1e-4.
@@ -30,12 +31,18 @@ def _turned(x: float, y: float, z: float, ce: float, cn: float, cu: float) -> tu
     else:
         t = sqrt(t2)
         s, k = math.sin(t) / t, (1.0 - math.cos(t)) / t2
-    px, py, pz = cn * z - cu * y, cu * x - ce * z, ce * y - cn * x
-    return (
-        x + s * px + k * (cn * pz - cu * py),
-        y + s * py + k * (cu * px - ce * pz),
-        z + s * pz + k * (ce * py - cn * px),
-    )
+    out: list[float] = []
+    for i in range(0, len(v), 3):
+        x, y, z = v[i], v[i + 1], v[i + 2]
+        px, py, pz = cn * z - cu * y, cu * x - ce * z, ce * y - cn * x
+        out += (x + s * px + k * (cn * pz - cu * py), y + s * py + k * (cu * px - ce * pz),
+                z + s * pz + k * (ce * py - cn * px))
+    return tuple(out)
+
+
+def about_up(c: float, s: float, e: float, n: float) -> tuple[float, float]:
+    """``(e, n)`` (east, north) turned about world up by the angle of cosine ``c`` and sine ``s``."""
+    return c * e - s * n, s * e + c * n
 
 
 class MagGate(OrientationFilter):
@@ -87,9 +94,9 @@ class MagGate(OrientationFilter):
         self._mag_band: tuple[float, ...] | None = None
         self._mag_band_t = -math.inf
         # The band's ramp-free part: a third low-pass f (of the second, MAG_BAND_S[1]) and the squared deviation's
-        # low-pass of (a - b) - (b - f), which is zero for a direction that turns at a constant rate (None: seeded
-        # with the band).
-        self._mag_curve: tuple[float, ...] | None = None
+        # low-pass of (a - b) - (b - f), which is zero for a direction that turns at a constant rate (seeded with the
+        # band).
+        self._mag_curve: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
         self._mag_consistent = True
         # The bias's relative uncertainty the verdict allows for: the largest over the band's memory (see below).
         self._mag_u = 0.0
@@ -108,13 +115,11 @@ class MagGate(OrientationFilter):
         turned so: a heading set), so that the field seen through the attitude does not look as if it moved."""
         if self._mag_band is not None:
             ae, an, au, be, bn, bu, s2 = self._mag_band
-            self._mag_band = (c * ae - s * an, s * ae + c * an, au, c * be - s * bn, s * be + c * bn, bu, s2)
-        if self._mag_curve is not None:
-            fe, fn, fu, s2c = self._mag_curve
-            self._mag_curve = (c * fe - s * fn, s * fe + c * fn, fu, s2c)
+            self._mag_band = (*about_up(c, s, ae, an), au, *about_up(c, s, be, bn), bu, s2)
+        fe, fn, fu, s2c = self._mag_curve
+        self._mag_curve = (*about_up(c, s, fe, fn), fu, s2c)
         cn, cs, n, turn, (ae, an, au, be, bn, bu, s2) = self._mag_candidate
-        self._mag_candidate = (cn, cs, n, turn, (c * ae - s * an, s * ae + c * an, au, c * be - s * bn, s * be + c * bn,
-                                                  bu, s2))
+        self._mag_candidate = (cn, cs, n, turn, (*about_up(c, s, ae, an), au, *about_up(c, s, be, bn), bu, s2))
 
     def _bounds(self, norm: float, sin_dip: float) -> tuple[float, float, float, float]:
         """Acceptance bounds (squared norm, sin(dip)) around a field of ``norm`` and dip ``asin(sin_dip)``.
@@ -186,18 +191,15 @@ class MagGate(OrientationFilter):
             # First, or after the field was rejected for a while (the gyro drifted meanwhile): the direction's
             # filters start again from here; the wander scores keep their memory.
             self._mag_band = (ue, un, uu, ue, un, uu, 0.0 if band is None else band[6])
-            self._mag_curve = (ue, un, uu, 0.0 if curve is None else curve[3])
+            self._mag_curve = (ue, un, uu, curve[3])
             return
         ae, an, au, be, bn, bu, s2 = band
-        # (None: the band was just handed over by a new field, see _mag_rejected.)
-        fe, fn, fu, s2c = (be, bn, bu, 0.0) if curve is None else curve
+        fe, fn, fu, s2c = curve
         # The LCF's corrections turned the field seen through the attitude by (ce, cn, cu): turn the filters' states
         # with them, so that only the field's own motion shows. Exactly, not to first order: a heading re-acquired
         # (a new field) turns by up to 180° in one block, and a first-order turn by 0.5 rad leaves the states 2° and
         # 12 % off, which the band then reads as the field's motion for its 8 s.
-        ae, an, au = _turned(ae, an, au, ce, cn, cu)
-        be, bn, bu = _turned(be, bn, bu, ce, cn, cu)
-        fe, fn, fu = _turned(fe, fn, fu, ce, cn, cu)
+        ae, an, au, be, bn, bu, fe, fn, fu = _turned(ce, cn, cu, (ae, an, au, be, bn, bu, fe, fn, fu))
         k1, k2 = c.k_band1, c.k_band2
         ae += k1 * (ue - ae)
         an += k1 * (un - an)
@@ -300,7 +302,7 @@ class MagGate(OrientationFilter):
                 self._set_mag_reference(cn, cs, learn=False)
                 # Its verdict carries over: it stayed put while timed.
                 self._mag_band = band
-                self._mag_curve = None
+                self._mag_curve = (band[3], band[4], band[5], 0.0)
                 self._mag_band_t = t
                 self._mag_consistent = True
                 self._mag_weight = 1.0
