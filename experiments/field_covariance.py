@@ -20,9 +20,9 @@ from typing import Any
 import field_sweep
 import numpy as np
 from _trials import map_trials
+from simulated_accuracy import _heading_rmse
 
 from ccf_ros.core import run_batch
-from ccf_ros.core.metrics import error_angles
 from ccf_ros.settings import build
 
 LAYOUTS = ['uniform (control)', '100/1.2 across', 'ref 300/1.2 across', '600/1.2 across']
@@ -38,8 +38,8 @@ def run_one(args: tuple[str, int, float, float, dict[str, str]]) -> tuple[str, i
         filt, _ = build(s)
         r = run_batch(filt, d.t_s, d.gyr, d.acc, d.mag)
         sel = d.moving & r.answered
-        h = np.degrees(error_angles(r.quat[sel], d.q_true[sel])[1])
-        out.append((float(np.sqrt(np.mean(h**2))), float(np.degrees(np.sqrt(np.mean(r.variance[sel, 2]))))))
+        out.append((_heading_rmse(r.quat, d.q_true, sel, fitted=False),
+                    float(np.degrees(np.sqrt(np.mean(r.variance[sel, 2]))))))
     return name, seed, out
 
 

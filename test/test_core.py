@@ -1041,6 +1041,20 @@ def test_a_field_that_varies_with_position_steers_neither_heading_nor_tilt():
     assert fitted_total_rmse_deg(off, d.q_true, d.moving) > 2.0 * h9, (fitted_total_rmse_deg(off, d.q_true, d.moving), h9)
 
 
+def _level_imu(t: np.ndarray, yaw: np.ndarray, yaw_rate: np.ndarray, bias_up: float = 0.0):
+    """A level IMU turning about up (yaw rad, its rate rad/s, each ``(N,)``) in a homogeneous field, 100 Hz-grade noise
+    (seed 0): (q_true, gyr, acc, mag), the gyro with ``bias_up`` rad/s about its z."""
+    from ccf_ros.core.quaternion import quat_conj, quat_from_rotvec
+    from ccf_ros.offline.simulate import MAG_WORLD
+
+    q = quat_from_rotvec(np.outer(yaw, [0.0, 0.0, 1.0]))
+    rng = np.random.default_rng(0)
+    gyr = np.outer(yaw_rate, [0.0, 0.0, 1.0]) + [0.0, 0.0, bias_up] + rng.normal(0.0, 0.002, (len(t), 3))
+    acc = quat_rotate(quat_conj(q), np.array([0.0, 0.0, 9.81])) + rng.normal(0.0, 0.02, (len(t), 3))
+    mag = quat_rotate(quat_conj(q), MAG_WORLD) + rng.normal(0.0, 0.2e-6, (len(t), 3))
+    return q, gyr, acc, mag
+
+
 @pytest.mark.parametrize('yaw_deg', [30.0, 120.0, 179.0])
 def test_a_magnetometer_that_arrives_late_is_acquired_without_looking_like_a_turning_field(yaw_deg):
     """The magnetometer's first sample 3 s after the IMU's (a node whose magnetometer topic comes later), the sensor
@@ -1048,15 +1062,8 @@ def test_a_magnetometer_that_arrives_late_is_acquired_without_looking_like_a_tur
     block. Its samples, summed through the attitude before and after the step, once seeded the consistency band with
     a direction between the two, which the band then read as the field's motion: the field was weighted down (to
     0.27 / 0.07 / 0.05) for ~20 s, at 120° and 179° rejected outright."""
-    from ccf_ros.core.quaternion import quat_conj, quat_from_rotvec
-    from ccf_ros.offline.simulate import MAG_WORLD
-
     t = np.arange(0.0, 30.0, 0.01)
-    rng = np.random.default_rng(0)
-    q = np.tile(quat_from_rotvec(np.array([0.0, 0.0, math.radians(yaw_deg)])), (len(t), 1))
-    gyr = rng.normal(0.0, 0.002, (len(t), 3))
-    acc = quat_rotate(quat_conj(q), np.array([0.0, 0.0, 9.81])) + rng.normal(0.0, 0.02, (len(t), 3))
-    mag = quat_rotate(quat_conj(q), MAG_WORLD) + rng.normal(0.0, 0.2e-6, (len(t), 3))
+    _, gyr, acc, mag = _level_imu(t, np.full(len(t), math.radians(yaw_deg)), np.zeros(len(t)))
     f = QuaternionCcf()
     weights, yaw_err = [], []
     for i in range(len(t)):
@@ -1079,16 +1086,11 @@ def test_a_heading_set_in_9d_turns_the_gate_s_world_frame_filters_with_the_attit
     set_heading, 9-D): the field seen through the attitude turns with it, and so do the consistency check's filters,
     so that the field keeps steering heading and the blend brings it back to north over tau_mag_s (before, the band
     read the turn as the field's motion and weighted it down to 0.46)."""
-    from ccf_ros.core.quaternion import quat_conj, quat_from_rotvec, rpy_of
-    from ccf_ros.offline.simulate import MAG_WORLD
+    from ccf_ros.core.quaternion import rpy_of
 
     t = np.arange(0.0, 40.0, 0.01)
-    rng = np.random.default_rng(0)
     yaw = 1.0 - np.cos(0.5 * t)
-    q = quat_from_rotvec(np.outer(yaw, [0.0, 0.0, 1.0]))
-    gyr = np.outer(0.5 * np.sin(0.5 * t), [0.0, 0.0, 1.0]) + rng.normal(0.0, 0.002, (len(t), 3))
-    acc = quat_rotate(quat_conj(q), np.array([0.0, 0.0, 9.81])) + rng.normal(0.0, 0.02, (len(t), 3))
-    mag = quat_rotate(quat_conj(q), MAG_WORLD) + rng.normal(0.0, 0.2e-6, (len(t), 3))
+    _, gyr, acc, mag = _level_imu(t, yaw, 0.5 * np.sin(0.5 * t))
     f = QuaternionCcf()
     weights, err, band_rms = [], [], []
     for i in range(len(t)):
@@ -1226,16 +1228,10 @@ def test_without_bias_from_mag_the_magnetometer_holds_heading_but_never_teaches_
     false) the bias stays unlearnt and the heading blend alone holds heading, lagging by bias x tau_mag_s, and the
     reported yaw variance says so."""
     from ccf_ros.core.metrics import error_angles
-    from ccf_ros.core.quaternion import quat_conj, quat_from_rotvec
-    from ccf_ros.offline.simulate import MAG_WORLD
 
     t = np.arange(0.0, 180.0, 0.01)
-    q = quat_from_rotvec(np.outer(1.0 - np.cos(0.5 * t), [0.0, 0.0, 1.0]))  # yaw = the rate's integral
-    bias = math.radians(0.3)
-    rng = np.random.default_rng(0)
-    gyr = np.outer(0.5 * np.sin(0.5 * t), [0.0, 0.0, 1.0]) + [0.0, 0.0, bias] + rng.normal(0.0, 0.002, (len(t), 3))
-    acc = quat_rotate(quat_conj(q), np.array([0.0, 0.0, 9.81])) + rng.normal(0.0, 0.02, (len(t), 3))
-    mag = quat_rotate(quat_conj(q), MAG_WORLD) + rng.normal(0.0, 0.2e-6, (len(t), 3))
+    # (yaw = the rate's integral)
+    q, gyr, acc, mag = _level_imu(t, 1.0 - np.cos(0.5 * t), 0.5 * np.sin(0.5 * t), math.radians(0.3))
     late = t > 60.0
     lag = 0.3 * CcfParams().tau_mag_s
     for settings in ({}, {'bias_from_mag': False}, {'motion_bias': False}):
