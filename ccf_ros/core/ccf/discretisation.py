@@ -133,6 +133,7 @@ class _BlockCoefficients:
     k_score: float
     wander_var: float
     drift_var: float
+    drift_step: float
     drift_curve_var: float
     motion_bias: bool
     bias_from_mag: bool
@@ -174,8 +175,12 @@ class _BlockCoefficients:
             # threshold, squared; inf: the check is off) ...
             wander_var=(0.5 * p.mag_consistency_rad) ** 2 if p.mag_consistency_rad > 0.0 else math.inf,
             # ... plus the attitude's drift from a bias error of bias_sigma_init over the band-pass's long time
-            # constant (a ramp of rate r shows as r * MAG_BAND_S[1]), scaled by the bias's relative variance.
+            # constant (a ramp of rate r shows as r * MAG_BAND_S[1]), scaled by the bias's relative variance (the
+            # new-field candidate's check) ...
             drift_var=(2.0 * p.bias_sigma_init_rad_s * MAG_BAND_S[1]) ** 2,
+            # ... or that drift as the band shows it: a ramp of 2 bias_sigma_init (rad/s, times the bias's relative
+            # standard deviation) band-passed as the field's direction is, rad per block.
+            drift_step=2.0 * p.bias_sigma_init_rad_s * t,
             # ... or, for the band's curvature, from a bias error of that size learnt: a step of rate r shows at
             # most as r * MAG_BAND_S[1] / e (t exp(-t / MAG_BAND_S[1]) at t = MAG_BAND_S[1]); a steady rate not at all.
             drift_curve_var=(2.0 * p.bias_sigma_init_rad_s * MAG_BAND_S[1] / math.e) ** 2,
