@@ -1117,14 +1117,13 @@ def test_a_heading_set_while_a_new_field_is_timed_does_not_delay_its_acceptance(
     candidate's world-frame band with the attitude, so the set is not read as the candidate moving: it is accepted
     when it is without the set (measured: at 30.01 s with or without; the candidate's band left unturned: 35.7,
     32.2, 42.9 s for sets at 15, 20, 25 s)."""
-    from ccf_ros.core.quaternion import quat_conj
+    from ccf_ros.core.quaternion import quat_conj, quat_from_rotvec
     from ccf_ros.offline.simulate import MAG_WORLD
 
     t = np.arange(0.0, 45.0, 0.01)
     yaw = 1.0 - np.cos(0.5 * t)
     q, gyr, acc, mag = _level_imu(t, yaw, 0.5 * np.sin(0.5 * t))
-    c, s = math.cos(0.7), math.sin(0.7)
-    new = 1.2 * np.array([c * MAG_WORLD[0] - s * MAG_WORLD[1], s * MAG_WORLD[0] + c * MAG_WORLD[1], MAG_WORLD[2]])
+    new = 1.2 * quat_rotate(quat_from_rotvec(np.array([0.0, 0.0, 0.7])), np.asarray(MAG_WORLD, float))
     moved = t >= 10.0
     mag[moved] = quat_rotate(quat_conj(q[moved]), new) + np.random.default_rng(1).normal(0.0, 0.2e-6, (moved.sum(), 3))
 

@@ -45,6 +45,13 @@ def about_up(c: float, s: float, e: float, n: float) -> tuple[float, float]:
     return c * e - s * n, s * e + c * n
 
 
+def _band_about_up(c: float, s: float, band: tuple[float, ...]) -> tuple[float, float, float, float, float, float, float]:
+    """A band's state (its two unit-vector low-passes, east, north, up each, and its score) turned about world up by
+    the angle of cosine ``c`` and sine ``s``."""
+    ae, an, au, be, bn, bu, s2 = band
+    return (*about_up(c, s, ae, an), au, *about_up(c, s, be, bn), bu, s2)
+
+
 class MagGate(OrientationFilter):
     """The gate's state and rare paths (a base of :class:`~ccf_ros.core.ccf.QuaternionCcf`, which owns the
     coefficients, the bias filter and the heading variance it reads)."""
@@ -119,12 +126,11 @@ class MagGate(OrientationFilter):
         """The gate's world-frame state turned about up by the angle of cosine ``c`` and sine ``s`` (the attitude is
         turned so: a heading set), so that the field seen through the attitude does not look as if it moved."""
         if self._mag_band is not None:
-            ae, an, au, be, bn, bu, s2 = self._mag_band
-            self._mag_band = (*about_up(c, s, ae, an), au, *about_up(c, s, be, bn), bu, s2)
+            self._mag_band = _band_about_up(c, s, self._mag_band)
         fe, fn, fu, s2c = self._mag_curve
         self._mag_curve = (*about_up(c, s, fe, fn), fu, s2c)
-        cn, cs, n, turn, (ae, an, au, be, bn, bu, s2) = self._mag_candidate
-        self._mag_candidate = (cn, cs, n, turn, (*about_up(c, s, ae, an), au, *about_up(c, s, be, bn), bu, s2))
+        cn, cs, n, turn, band = self._mag_candidate
+        self._mag_candidate = (cn, cs, n, turn, _band_about_up(c, s, band))
 
     def _bounds(self, norm: float, sin_dip: float) -> tuple[float, float, float, float]:
         """Acceptance bounds (squared norm, sin(dip)) around a field of ``norm`` and dip ``asin(sin_dip)``.
