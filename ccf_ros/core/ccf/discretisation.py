@@ -67,8 +67,10 @@ class _Coefficients:
         # Rest thresholds apply to (sample - new low-pass) = (1 - k_rest) * (sample - old low-pass).
         rest_keep2 = (1.0 - k_rest) ** 2 if k_rest < 1.0 else 1e-300
         lp = butterworth_step(p.tau_acc_lp_s, dt)
-        # The start-up hands the blends over to their time constants; without a magnetometer heading has none.
-        taus = (p.tau_acc_s, p.tau_acc_lp_s, p.tau_mag_s) if p.use_mag else (p.tau_acc_s, p.tau_acc_lp_s)
+        # The start-up hands the blends over to their time constants, and it lasts until the slowest would, heading's
+        # included: without a magnetometer too, where it is the longest the bias waits for a tilt error a bias
+        # could hold (QuaternionCcf._step, step 3).
+        taus = (p.tau_acc_s, p.tau_acc_lp_s, p.tau_mag_s)
         return cls(
             dt_lo=dt_lo,
             dt_hi=dt_hi,
@@ -128,6 +130,7 @@ class _BlockCoefficients:
     gate_tilt: float
     gate_head: float
     gate_p: float
+    start_tilt2: float
     k_band1: float
     k_band2: float
     k_score: float
@@ -166,6 +169,11 @@ class _BlockCoefficients:
             gate_head=(p.heading_sigma_rad / p.tau_ncf_s) ** 2,
             # The gate holds once the bias's variance along the observation is below a quarter of the initial one.
             gate_p=0.25 * p.bias_sigma_init_rad_s**2,
+            # Within the start-up, once the tilt is found, a 6-D filter's bias learns only while the NCF's tilt error
+            # (rad, squared) is one a bias could hold: 3 sigma of the prior times tau_ncf_s (the proportional NCF
+            # lags a constant bias b by b tau_ncf_s) and of the accelerometer's own error (incl_sigma_rad). 9-D waits
+            # for the whole start-up (0: never), its heading being a running mean of the field through the bias.
+            start_tilt2=0.0 if p.use_mag else 9.0 * ((p.bias_sigma_init_rad_s * p.tau_ncf_s) ** 2 + p.incl_sigma_rad**2),
             k_band1=-math.expm1(-t / MAG_BAND_S[0]),
             k_band2=-math.expm1(-t / MAG_BAND_S[1]),
             k_score=-math.expm1(-t / MAG_SCORE_S),

@@ -452,9 +452,13 @@ class QuaternionCcf(MagGate):
                 (h_sum, h_n, self._mag_ref[1], self._mag_weight)
                 if h_n and steady >= _STEADY_S and cb.bias_from_mag else None,
                 gx * gx + gy * gy + gz * gz,
-                # Not during the start-up (ni): the errors then are the initial attitude's, not the bias's; not at
-                # rest, where the low-passed gyro below is far more informative; not without an accelerometer.
-                not (ni or self.at_rest) and acc_n2 != 0.0,
+                # Not during the start-up (ni): the errors then are the initial attitude's, not the bias's (a start in
+                # strong motion leaves the tilt tens of degrees off for seconds, and its decay, read as drift, taught
+                # the bias degrees per second), except in 6-D once the tilt is found (k_lp 0) while the NCF's tilt
+                # error is one a bias could hold (cb.start_tilt2); not at rest, where the low-passed gyro below is far
+                # more informative; not without an accelerometer.
+                acc_n2 != 0.0 and not self.at_rest
+                and (not ni or (not k_lp and nx * nx + ny * ny + nz * nz < cb.start_tilt2)),
                 self.at_rest,
             )
             if w_n and k_lp == 0.0:
