@@ -66,7 +66,8 @@ class BiasKalman:
         body->world rows ``axes``. The model runs the same low-passes on ``R`` and on ``R b`` (the estimate's own
         history), so the innovation is ``y + M(R b) - M(R) b``, and ``M(R)`` is the measurement matrix of a Kalman
         update, one scalar row at a time. ``w2``: the squared gyro rate, rad²/s². ``learn``: use the observations
-        (not during start-up, at rest or without an accelerometer); ``at_rest``: the covariance relaxes to the rest's.
+        (not during the start-up, except in 6-D once the tilt is found; not at rest or without an accelerometer);
+        ``at_rest``: the covariance relaxes to the rest's.
         """
         r0x, r0y, r0z, r1x, r1y, r1z, vx, vy, vz = axes
         rb0 = r0x * bx + r0y * by + r0z * bz

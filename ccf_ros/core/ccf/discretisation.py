@@ -173,7 +173,9 @@ class _BlockCoefficients:
             # (rad, squared) is one a bias could hold: 3 sigma of the prior times tau_ncf_s (the proportional NCF
             # lags a constant bias b by b tau_ncf_s) and of the accelerometer's own error (incl_sigma_rad). 9-D waits
             # for the whole start-up (0: never), its heading being a running mean of the field through the bias.
-            start_tilt2=0.0 if p.use_mag else 9.0 * ((p.bias_sigma_init_rad_s * p.tau_ncf_s) ** 2 + p.incl_sigma_rad**2),
+            start_tilt2=(
+                0.0 if p.use_mag else 9.0 * ((p.bias_sigma_init_rad_s * p.tau_ncf_s) ** 2 + p.incl_sigma_rad**2)
+            ),
             k_band1=-math.expm1(-t / MAG_BAND_S[0]),
             k_band2=-math.expm1(-t / MAG_BAND_S[1]),
             k_score=-math.expm1(-t / MAG_SCORE_S),

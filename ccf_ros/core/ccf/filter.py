@@ -656,8 +656,9 @@ class QuaternionCcf(MagGate):
     def _gyro_clipped(self, var_clip: float) -> None:
         """A gyro sample at its range: the attitude may be off by up to the range times the step (rad, squared:
         ``var_clip``). Restart the accelerometer's and magnetometer's blends and the gravity low-pass as running
-        means from the next sample on, as at start-up (no bias learnt meanwhile), so that they bring the attitude
-        back fast; x-io Fusion's angular-rate recovery does the same with a fixed gain."""
+        means from the next sample on, as at start-up (no bias learnt meanwhile in 9-D; in 6-D only from a tilt error
+        a bias could hold), so that they bring the attitude back fast; x-io Fusion's angular-rate recovery does the
+        same with a fixed gain."""
         self.n_gyro_clipped += 1
         self._n_init = 1
         self._var_incl += var_clip
