@@ -5,10 +5,11 @@ observation model and its noise: doc/algorithm.md)."""
 from __future__ import annotations
 
 from .discretisation import _BlockCoefficients
+from .params import BIAS_GATE_SIGMAS
 
-#: The NCF's bias observations are used only within this many standard deviations of what the bias uncertainty and
-#: the attitude references' own errors (incl_sigma_rad, heading_sigma_rad, over tau_ncf_s) explain (squared).
-_GATE2 = 3.0**2
+#: The gate (params.BIAS_GATE_SIGMAS), squared: the references' own errors are incl_sigma_rad and heading_sigma_rad
+#: over tau_ncf_s.
+_GATE2 = BIAS_GATE_SIGMAS**2
 #: cos²(dip) is floored at this when the heading observations' noise is scaled by 1/cos²(dip) (near a magnetic pole
 #: the horizontal field, and so heading, is lost in the tilt error).
 _COS2_DIP_MIN = 0.05

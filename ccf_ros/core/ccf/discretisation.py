@@ -8,7 +8,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TypeVar
 
-from .params import CLIP_FRACTION, MAG_BAND_S, MAG_SCORE_S, CcfParams
+from .params import BIAS_GATE_SIGMAS, CLIP_FRACTION, MAG_BAND_S, MAG_SCORE_S, CcfParams
 
 
 def butterworth_step(tau_s: float, dt: float) -> tuple[float, float, float, float]:
@@ -170,11 +170,14 @@ class _BlockCoefficients:
             # The gate holds once the bias's variance along the observation is below a quarter of the initial one.
             gate_p=0.25 * p.bias_sigma_init_rad_s**2,
             # Within the start-up, once the tilt is found, a 6-D filter's bias learns only while the NCF's tilt error
-            # (rad, squared) is one a bias could hold: 3 sigma of the prior times tau_ncf_s (the proportional NCF
-            # lags a constant bias b by b tau_ncf_s) and of the accelerometer's own error (incl_sigma_rad). 9-D waits
-            # for the whole start-up (0: never), its heading being a running mean of the field through the bias.
+            # (rad, squared) is one a bias could hold: the gate's 3 sigma of the prior times tau_ncf_s (the
+            # proportional NCF lags a constant bias b by b tau_ncf_s) and of the accelerometer's own error
+            # (incl_sigma_rad). 9-D waits for the whole start-up (0: never), its heading being a running mean of the
+            # field through the bias.
             start_tilt2=(
-                0.0 if p.use_mag else 9.0 * ((p.bias_sigma_init_rad_s * p.tau_ncf_s) ** 2 + p.incl_sigma_rad**2)
+                0.0
+                if p.use_mag
+                else BIAS_GATE_SIGMAS**2 * ((p.bias_sigma_init_rad_s * p.tau_ncf_s) ** 2 + p.incl_sigma_rad**2)
             ),
             k_band1=-math.expm1(-t / MAG_BAND_S[0]),
             k_band2=-math.expm1(-t / MAG_BAND_S[1]),

@@ -16,6 +16,10 @@ GRAVITY_M_S2 = 9.80665
 #: updates a second lose nothing (BROAD's mean error moves by 0.005° between 50 and 25 Hz) and save most of the
 #: matrix arithmetic.
 BIAS_UPDATE_PERIOD_S = 0.04
+#: The NCF's bias observations are used only within this many standard deviations of what the bias uncertainty and
+#: the attitude references' own errors explain (BiasKalman.update's gate), and in a 6-D start-up only while the tilt
+#: error is within this many of the prior's (``_BlockCoefficients.start_tilt2``).
+BIAS_GATE_SIGMAS = 3.0
 #: The field's world direction (through the attitude) is band-passed between these time constants, s, to tell a
 #: field that stays put from one that changes as the sensor moves (see MagGate._mag_consistency): the first
 #: averages the magnetometer's noise and the wobble its lag gives during hand motion (0.5 Hz and up), the second is
