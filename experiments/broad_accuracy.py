@@ -2,7 +2,7 @@
 
 Usage: python experiments/broad_accuracy.py [--shared ../shared/data/broad] [--rates 1,3,6] [--no-6d] [NAME=VALUE ...]
 Prints per-trial total/heading/inclination RMSE (deg) and the mean, beside the VQF columns of
-shared/data/broad/README.md; and the 6-D run (no magnetometer) scored with one heading offset fitted per trial.
+shared/data/broad/README.md; and the 6-D run (no magnetometer) at each rate, scored with one heading offset fitted per trial.
 Lower rates are made two ways: every n-th sample (point samples, the usual benchmark) and the mean of each n samples
 (what a sensor running at the lower output rate reports: its decimation filter averages); the means are printed as a
 last line per rate.
@@ -50,7 +50,7 @@ def run_trial(args: tuple[Path, list[int], dict[str, str], bool]) -> tuple[str, 
     mask = mask_at(t_ref, *read_bools(trial, '/ground_truth/moving'))
     out: dict[str, tuple[float, ...]] = {}
     runs = [(str(step), step, True) for step in steps] + [(f'{step}m', step, True) for step in steps if step > 1]
-    runs += [('6d', 1, False)] if six_d else []
+    runs += [(f'6d{step}', step, False) for step in steps] if six_d else []
     for key, step, use_mag in runs:
         t, gyr, acc, mag = _decimated(imu, step, mean=key.endswith('m'))
         filt, adapter = build({**settings, 'use_mag': use_mag} if not use_mag else settings)
@@ -95,14 +95,18 @@ def main() -> None:
             m = np.mean([r[str(step)][0] for r in results.values()])
             mm = np.mean([r[f'{step}m'][0] for r in results.values()])
             print(f'rate ratio {286 / step:.0f} Hz / 286 Hz: {m / base:.3f} (averaged samples {mm / base:.3f})')
-    if not a.no_6d:
-        print('\n== 6-D (no magnetometer), 286 Hz: total with one heading offset fitted per trial, inclination')
+    for step in steps if not a.no_6d else []:
+        key = f'6d{step}'
+        print(f'\n== 6-D (no magnetometer), {286 / step:.0f} Hz: total with one heading offset fitted per trial, '
+              'inclination')
         for name, res in results.items():
             v = VQF.get(name[:2])
-            print(f'{name:45s} {res["6d"][4]:7.2f} {res["6d"][2]:7.2f}   VQF 6D {v[3] if v else float("nan"):5.2f}')
-        m6 = np.mean([r['6d'][4] for r in results.values()])
-        i6 = np.mean([r['6d'][2] for r in results.values()])
-        print(f'{"mean":45s} {m6:7.2f} {i6:7.2f}   VQF 6D {np.mean([v[3] for v in VQF.values()]):5.2f}')
+            ref = f'VQF 6D {v[3] if v else float("nan"):5.2f}' if step == 1 else ''
+            print(f'{name:45s} {res[key][4]:7.2f} {res[key][2]:7.2f}   {ref}')
+        m6 = np.mean([r[key][4] for r in results.values()])
+        i6 = np.mean([r[key][2] for r in results.values()])
+        ref = f'VQF 6D {np.mean([v[3] for v in VQF.values()]):5.2f}' if step == 1 else ''
+        print(f'{"mean":45s} {m6:7.2f} {i6:7.2f}   {ref}')
     print(f'({time.time() - t0:.0f} s)')
 
 
