@@ -1144,6 +1144,37 @@ def test_a_heading_set_in_9d_turns_the_gate_s_world_frame_filters_with_the_attit
     assert max(band_rms) < 0.06, max(band_rms)
 
 
+def test_a_bias_along_up_beyond_the_heading_rows_5_degrees_is_learnt_from_its_steady_lag():
+    """Level turns back and forth in a homogeneous field, no rest, a gyro bias of 1.4 °/s about up (2.8 sigma of the
+    prior): the blend lags the field by b tau_mag_s and the NCF by b tau_ncf_s, so the stages' headings differ by a
+    steady 17°, beyond the ±5° of the heading rows. Held that long, it is taken for a bias's lag and learnt. (With
+    the ±5° alone the bias stayed unlearnt, a level body shows it to no tilt row, and heading lagged by 24°.)"""
+    from ccf_ros.core.quaternion import rpy_of
+
+    t = np.arange(0.0, 150.0, 0.01)
+    yaw = 1.0 - np.cos(0.5 * t)
+    _, gyr, acc, mag = _level_imu(t, yaw, 0.5 * np.sin(0.5 * t), bias_up=math.radians(1.4))
+    f = QuaternionCcf()
+    err = []
+    for i in range(len(t)):
+        f.update(1.7e9 + t[i], tuple(gyr[i]), tuple(acc[i]), tuple(mag[i]))
+        err.append(math.degrees(math.remainder(rpy_of(f.quaternion)[2] - yaw[i], 2.0 * math.pi)))
+    late = t >= 120.0
+    # Measured: heading 0.15° RMS over 120-150 s, the bias 1.396 °/s (before: 24.3°, 0.000 °/s).
+    assert np.sqrt(np.mean(np.square(err)[late])) < 0.2
+    assert abs(math.degrees(f.gyro_bias[2]) - 1.4) < 0.01
+
+
+def test_started_moving_in_a_slowly_turning_field_its_turn_is_not_taken_for_a_bias_s_lag():
+    """Started while moving through a dipole's field that turns slowly (a crossing of the workspace every ~20 s):
+    the stages' heading difference the turn opens passes through steady moments, at its peaks, which the rule for
+    a bias's steady lag must not take (it holds for tau_mag_s). '300/1.2 across slow' of `experiments/field_sweep.py
+    --rest 0.5 --bias-deg 0.15`, 12 seeds."""
+    m9, m6 = _started_moving_in_a_dipole(300.0, 1.2, 0.15, range(12), band_hz=(0.022, 0.028))
+    # Measured (9-D, 6-D): (3.83, 2.32); taking the steady moments without the hold: 9-D 5.40.
+    assert m9 < 4.5, (m9, m6)
+
+
 def test_a_heading_set_while_a_new_field_is_timed_does_not_delay_its_acceptance():
     """Level turns back and forth; from 10 s a new homogeneous field (turned 40° about up, 1.2x: another building)
     is rejected and timed as the candidate for mag_reaccept_s. A heading set meanwhile (set_heading, 9-D) turns the

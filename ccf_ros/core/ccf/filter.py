@@ -13,6 +13,7 @@ from .discretisation import _BlockCoefficients, _cached, _Coefficients
 from .mag_gate import STEADY_LOSS, MagGate, about_up
 from .params import (
     _DEG,
+    BIAS_GATE_SIGMAS,
     BIAS_UPDATE_PERIOD_S,
     CLIP_FRACTION,
     GRAVITY_M_S2,
@@ -114,6 +115,8 @@ class QuaternionCcf(MagGate):
         '_heading_known',
         '_incl_var',
         '_kf',
+        '_lag_lp',
+        '_lag_since',
         '_n_init',
         '_raw_clip',
         '_rest_s',
@@ -179,6 +182,8 @@ class QuaternionCcf(MagGate):
         self._var_incl = 0.0
         self._var_head = 0.0
         self._heading_known = False
+        self._lag_lp = 0.0
+        self._lag_since = _INF
         # Whether the bias was seen at rest since the start (then a steady rate must agree with it to be a rest).
         self._bias_rested = False
         #: Gyro samples at gyro_range_rad_s since the start.
@@ -238,6 +243,9 @@ class QuaternionCcf(MagGate):
         self._rest_s = 0.0
         self.at_rest = False
         self._var_incl = 0.0
+        # The stages' heading difference starts at zero again (dn_u above).
+        self._lag_lp = 0.0
+        self._lag_since = _INF
         # The bias and its covariance are kept; the observation model starts from the new attitude.
         self._kf.model = None
         # Start-up: the blends begin as running means (gain 1/n) and hand over to their time constants once 1/n
@@ -396,14 +404,18 @@ class QuaternionCcf(MagGate):
                     we, wn = about_up(cos(kd), sin(kd), we, wn)
                 # NCF heading error (its heading is the LCF's turned by dnz about world up). Its own heading takes
                 # all of it; the bias estimate only what is within ±_HEAD_ERR_MAX while the two stages' headings
-                # agree within it too. A larger error, or a larger dnz, means the heading has not converged yet (a
-                # start, a new field: the NCF turns faster than the LCF), and the decay would look like bias.
+                # agree within it too, or differ by a bias's steady lag (_bias_lag; dnz low-passed over tau_ncf_s
+                # for it). A larger error, or another larger dnz, means the heading has not converged yet (a start,
+                # a new field: the NCF turns faster than the LCF), and the decay would look like bias.
+                llp = self._lag_lp
+                llp += c.k_ncf * (dnz - llp)
+                self._lag_lp = llp
                 hn = d - dnz
                 if hn > _PI:  # the NCF's heading takes all of it: the short way round
                     hn -= _TWO_PI
                 elif hn < -_PI:
                     hn += _TWO_PI
-                if hn * hn < _HEAD_ERR_MAX2 and dnz * dnz < _HEAD_ERR_MAX2:
+                if hn * hn < _HEAD_ERR_MAX2 and (dnz * dnz < _HEAD_ERR_MAX2 or self._bias_lag(dnz, llp)):
                     h_sum += hn
                     h_n += 1
                 cx += kd * vx
@@ -652,6 +664,36 @@ class QuaternionCcf(MagGate):
             dnz + k * hn - kdn,
             bx, by, bz, blk_t, blk_n, h_sum, h_n, we, wn, wu, w_n, scx, scy, scz,
         )
+
+    def _bias_lag(self, dnz: float, dnz_lp: float) -> bool:
+        """Whether the stages' heading difference ``dnz`` (rad, beyond ±_HEAD_ERR_MAX; ``dnz_lp`` its low-pass over
+        tau_ncf_s) is a gyro bias's lag, which the heading rows must learn.
+
+        A bias ``b`` along world up makes the blend lag the field by ``b tm`` (``tm`` = tau_mag_s over the field's
+        weight) and the NCF by ``b tau_ncf_s``: a steady difference ``b (tm - tau_ncf_s)``, 17° for a 1.4 °/s bias
+        (±_HEAD_ERR_MAX alone held the rows off any bias beyond 0.42 °/s, and heading lagged by up to ``b tm`` for
+        minutes). Taken for one while within what BIAS_GATE_SIGMAS of the prior can hold, and once it has stayed
+        within ``tol`` of its low-pass for ``tm``. A start's, a heading set's or a new field's difference decays at
+        ``tm``, which the low-pass lags by ``dnz tau_ncf_s / (tm - tau_ncf_s)``: ``tol`` is that lag at
+        ±_HEAD_ERR_MAX, so no decay beyond it is taken, and its peak, where it turns from growing to decaying, does
+        not stay put for ``tm``; nor does the difference a field that turns as the sensor moves through it opens.
+        """
+        p = self.params
+        t_ncf = p.tau_ncf_s
+        tm = p.tau_mag_s / self._mag_weight
+        lim = BIAS_GATE_SIGMAS * p.bias_sigma_init_rad_s * (tm - t_ncf)
+        if dnz * dnz < lim * lim:
+            # (lim > ±_HEAD_ERR_MAX here: tm > tau_ncf_s.)
+            tol = _HEAD_ERR_MAX * t_ncf / (tm - t_ncf)
+            e = dnz - dnz_lp
+            if e * e < tol * tol:
+                t = self._t_last
+                since = self._lag_since
+                if since == _INF:
+                    self._lag_since = since = t
+                return t - since >= tm
+        self._lag_since = _INF
+        return False
 
     def _gyro_clipped(self, var_clip: float) -> None:
         """A gyro sample at its range: the attitude may be off by up to the range times the step (rad, squared:
