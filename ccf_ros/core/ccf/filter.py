@@ -205,6 +205,7 @@ class QuaternionCcf(MagGate):
 
     def _params_changed(self) -> None:
         self._rebuild_coefficients()
+        self._lag_since = _INF
         self._bcoef_cache = {}
         # The bin's middle: the same bin as before the change.
         self._bcoef = self._block_coefficients(math.sqrt(self._bcoef.t_lo * self._bcoef.t_hi))
@@ -415,7 +416,14 @@ class QuaternionCcf(MagGate):
                     hn -= _TWO_PI
                 elif hn < -_PI:
                     hn += _TWO_PI
-                if hn * hn < _HEAD_ERR_MAX2 and (dnz * dnz < _HEAD_ERR_MAX2 or self._bias_lag(dnz, llp)):
+                if dnz * dnz < _HEAD_ERR_MAX2:
+                    # (A steady lag beyond it must be held anew: its timer ends here.)
+                    if self._lag_since != _INF:
+                        self._lag_since = _INF
+                    use = hn * hn < _HEAD_ERR_MAX2
+                else:
+                    use = self._bias_lag(dnz, llp, hn)
+                if use:
                     h_sum += hn
                     h_n += 1
                 cx += kd * vx
@@ -665,33 +673,38 @@ class QuaternionCcf(MagGate):
             bx, by, bz, blk_t, blk_n, h_sum, h_n, we, wn, wu, w_n, scx, scy, scz,
         )
 
-    def _bias_lag(self, dnz: float, dnz_lp: float) -> bool:
+    def _bias_lag(self, dnz: float, dnz_lp: float, hn: float) -> bool:
         """Whether the stages' heading difference ``dnz`` (rad, beyond ±_HEAD_ERR_MAX; ``dnz_lp`` its low-pass over
-        tau_ncf_s) is a gyro bias's lag, which the heading rows must learn.
+        tau_ncf_s) is a gyro bias's lag, which the heading rows must learn from the NCF's heading error ``hn`` (rad).
 
-        A bias ``b`` along world up makes the blend lag the field by ``b tm`` (``tm`` = tau_mag_s over the field's
-        weight) and the NCF by ``b tau_ncf_s``: a steady difference ``b (tm - tau_ncf_s)``, 17° for a 1.4 °/s bias
-        (±_HEAD_ERR_MAX alone held the rows off any bias beyond 0.42 °/s, and heading lagged by up to ``b tm`` for
-        minutes). Taken for one while within what BIAS_GATE_SIGMAS of the prior can hold, and once it has stayed
-        within ``tol`` of its low-pass for ``tm``. A start's, a heading set's or a new field's difference decays at
+        A bias ``b`` along world up makes the blend lag the field by ``b tm`` (``tm``: tau_mag_s over the field's
+        weight) and the NCF by ``b tau_ncf_s``: a steady difference ``b (tm - tau_ncf_s)``, 17° for 1.4 °/s. Held to
+        ±_HEAD_ERR_MAX, the rows learnt such a bias only if they caught it while the difference grew (in level turns
+        after a start without rest, up to ~1 °/s); beyond, heading lagged by up to ``b tm`` for minutes. Taken for
+        one (on a sample whose ``hn`` is within ±_HEAD_ERR_MAX, as a bias within BIAS_GATE_SIGMAS of the prior keeps
+        it) while within what BIAS_GATE_SIGMAS of the prior can hold, and once it has stayed within ``tol`` of its
+        low-pass for ``tm`` on every magnetometer sample used (a rejected field leaves both as they were; the rows
+        then wait for its steadiness anyway). A start's, a heading set's or a new field's difference decays at
         ``tm``, which the low-pass lags by ``dnz tau_ncf_s / (tm - tau_ncf_s)``: ``tol`` is that lag at
-        ±_HEAD_ERR_MAX, so no decay beyond it is taken, and its peak, where it turns from growing to decaying, does
-        not stay put for ``tm``; nor does the difference a field that turns as the sensor moves through it opens.
+        ±_HEAD_ERR_MAX, so no decay beyond it is taken; the peak where it turns from growing to decaying does not
+        stay put for ``tm``, nor does the difference a field that turns as the sensor moves through it opens.
         """
         p = self.params
         t_ncf = p.tau_ncf_s
         tm = p.tau_mag_s / self._mag_weight
-        lim = BIAS_GATE_SIGMAS * p.bias_sigma_init_rad_s * (tm - t_ncf)
-        if dnz * dnz < lim * lim:
-            # (lim > ±_HEAD_ERR_MAX here: tm > tau_ncf_s.)
-            tol = _HEAD_ERR_MAX * t_ncf / (tm - t_ncf)
+        span = tm - t_ncf
+        lim = BIAS_GATE_SIGMAS * p.bias_sigma_init_rad_s * span
+        # (span > 0: a blend no slower than the NCF opens no such difference, and lim > ±_HEAD_ERR_MAX then.)
+        if span > 0.0 and dnz * dnz < lim * lim:
+            tol = _HEAD_ERR_MAX * t_ncf / span
             e = dnz - dnz_lp
             if e * e < tol * tol:
                 t = self._t_last
                 since = self._lag_since
                 if since == _INF:
                     self._lag_since = since = t
-                return t - since >= tm
+                # (A single noisy hn beyond ±_HEAD_ERR_MAX is left out, not taken as the lag's end.)
+                return t - since >= tm and hn * hn < _HEAD_ERR_MAX2
         self._lag_since = _INF
         return False
 
@@ -703,6 +716,7 @@ class QuaternionCcf(MagGate):
         same with a fixed gain."""
         self.n_gyro_clipped += 1
         self._n_init = 1
+        self._lag_since = _INF
         self._var_incl += var_clip
         self._var_head += var_clip
 
@@ -825,6 +839,7 @@ class QuaternionCcf(MagGate):
             # offset. Heading follows over tau_mag_s: snapping it to the first applied offsets, which are refined for
             # a while, measured worse.)
             self._forget_mag_reference()
+            self._lag_since = _INF
 
     def _rotate_about_up(self, angle_rad: float) -> None:
         """:meth:`OrientationFilter.set_heading`'s turn: the LCF orientation and the NCF offset ``dn`` (world frame)
@@ -832,6 +847,7 @@ class QuaternionCcf(MagGate):
         magnetometer gate's world-frame filters and this block's field sum, so that the field does not look as if it
         moved."""
         super()._rotate_about_up(angle_rad)
+        self._lag_since = _INF
         c, s = math.cos(angle_rad), math.sin(angle_rad)
         x = CcfState._make(self._x)
         (dn_e, dn_n), (field_e, field_n) = about_up(c, s, x.dn_e, x.dn_n), about_up(c, s, x.field_e, x.field_n)
