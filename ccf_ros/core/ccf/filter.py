@@ -66,6 +66,10 @@ class CcfState(NamedTuple):
     dn_e: float = 0.0
     dn_n: float = 0.0
     dn_u: float = 0.0
+    # dn_u low-passed over tau_ncf_s, rad, and the stamp (s; inf: none) since which dn_u, beyond ±5°, has stayed
+    # within its tolerance of it: whether the stages' heading difference is a bias's steady lag (_bias_lag).
+    dn_u_lp: float = 0.0
+    lag_since_s: float = math.inf
     # The gyro bias (the NCF's integral), rad/s, body frame.
     bias_x: float = 0.0
     bias_y: float = 0.0
@@ -89,6 +93,7 @@ class CcfState(NamedTuple):
 #: Where the bias begins in :class:`CcfState`.
 _I_BIAS = CcfState._fields.index('bias_x')
 _I_DN = CcfState._fields.index('dn_e')
+_I_LAG = CcfState._fields.index('lag_since_s')
 
 
 class QuaternionCcf(MagGate):
@@ -115,8 +120,6 @@ class QuaternionCcf(MagGate):
         '_heading_known',
         '_incl_var',
         '_kf',
-        '_lag_lp',
-        '_lag_since',
         '_n_init',
         '_raw_clip',
         '_rest_s',
@@ -182,8 +185,6 @@ class QuaternionCcf(MagGate):
         self._var_incl = 0.0
         self._var_head = 0.0
         self._heading_known = False
-        self._lag_lp = 0.0
-        self._lag_since = _INF
         # Whether the bias was seen at rest since the start (then a steady rate must agree with it to be a rest).
         self._bias_rested = False
         #: Gyro samples at gyro_range_rad_s since the start.
@@ -205,7 +206,7 @@ class QuaternionCcf(MagGate):
 
     def _params_changed(self) -> None:
         self._rebuild_coefficients()
-        self._lag_since = _INF
+        self._end_lag()
         self._bcoef_cache = {}
         # The bin's middle: the same bin as before the change.
         self._bcoef = self._block_coefficients(math.sqrt(self._bcoef.t_lo * self._bcoef.t_hi))
@@ -244,9 +245,6 @@ class QuaternionCcf(MagGate):
         self._rest_s = 0.0
         self.at_rest = False
         self._var_incl = 0.0
-        # The stages' heading difference starts at zero again (dn_u above).
-        self._lag_lp = 0.0
-        self._lag_since = _INF
         # The bias and its covariance are kept; the observation model starts from the new attitude.
         self._kf.model = None
         # Start-up: the blends begin as running means (gain 1/n) and hand over to their time constants once 1/n
@@ -289,7 +287,7 @@ class QuaternionCcf(MagGate):
             self._gyro_clipped(c.var_clip)
         qw, qx, qy, qz = self._q
         # CcfState's fields, in its order (a plain tuple: see CcfState).
-        (fx, fy, fz, fdx, fdy, fdz, dnx, dny, dnz, bx, by, bz, blk_t, blk_n, h_sum, h_n,
+        (fx, fy, fz, fdx, fdy, fdz, dnx, dny, dnz, dlp, lag_t, bx, by, bz, blk_t, blk_n, h_sum, h_n,
          we, wn, wu, w_n, scx, scy, scz) = self._x
         # -- 1. Attitude and errors.
         # Rows of the body->world rotation matrix: world east (r0), north (r1) and up (v) in body coordinates.
@@ -408,9 +406,7 @@ class QuaternionCcf(MagGate):
                 # agree within it too, or differ by a bias's steady lag (_bias_lag; dnz low-passed over tau_ncf_s
                 # for it). A larger error, or another larger dnz, means the heading has not converged yet (a start,
                 # a new field: the NCF turns faster than the LCF), and the decay would look like bias.
-                llp = self._lag_lp
-                llp += c.k_ncf * (dnz - llp)
-                self._lag_lp = llp
+                dlp += c.k_ncf * (dnz - dlp)
                 hn = d - dnz
                 if hn > _PI:  # the NCF's heading takes all of it: the short way round
                     hn -= _TWO_PI
@@ -418,11 +414,10 @@ class QuaternionCcf(MagGate):
                     hn += _TWO_PI
                 if dnz * dnz < _HEAD_ERR_MAX2:
                     # (A steady lag beyond it must be held anew: its timer ends here.)
-                    if self._lag_since != _INF:
-                        self._lag_since = _INF
+                    lag_t = _INF
                     use = hn * hn < _HEAD_ERR_MAX2
                 else:
-                    use = self._bias_lag(dnz, llp, hn)
+                    use, lag_t = self._bias_lag(dnz, dlp, hn, lag_t)
                 if use:
                     h_sum += hn
                     h_n += 1
@@ -669,13 +664,14 @@ class QuaternionCcf(MagGate):
             dnx + r0x * ux + r0y * uy + r0z * uz,
             dny + r1x * ux + r1y * uy + r1z * uz,
             # (A re-acquisition's share, kd - kdn, turns both stages: it is no drift of the NCF's.)
-            dnz + k * hn - kdn,
+            dnz + k * hn - kdn, dlp, lag_t,
             bx, by, bz, blk_t, blk_n, h_sum, h_n, we, wn, wu, w_n, scx, scy, scz,
         )
 
-    def _bias_lag(self, dnz: float, dnz_lp: float, hn: float) -> bool:
+    def _bias_lag(self, dnz: float, dnz_lp: float, hn: float, since: float) -> tuple[bool, float]:
         """Whether the stages' heading difference ``dnz`` (rad, beyond ±_HEAD_ERR_MAX; ``dnz_lp`` its low-pass over
-        tau_ncf_s) is a gyro bias's lag, which the heading rows must learn from the NCF's heading error ``hn`` (rad).
+        tau_ncf_s) is a gyro bias's lag, which the heading rows must learn from the NCF's heading error ``hn`` (rad);
+        and the steadiness timer's new start (``since``: the state's ``lag_since_s``).
 
         A bias ``b`` along world up makes the blend lag the field by ``b tm`` (``tm``: tau_mag_s over the field's
         weight) and the NCF by ``b tau_ncf_s``: a steady difference ``b (tm - tau_ncf_s)``, 17° for 1.4 °/s. Held to
@@ -700,13 +696,18 @@ class QuaternionCcf(MagGate):
             e = dnz - dnz_lp
             if e * e < tol * tol:
                 t = self._t_last
-                since = self._lag_since
                 if since == _INF:
-                    self._lag_since = since = t
+                    since = t
                 # (A single noisy hn beyond ±_HEAD_ERR_MAX is left out, not taken as the lag's end.)
-                return t - since >= tm and hn * hn < _HEAD_ERR_MAX2
-        self._lag_since = _INF
-        return False
+                return t - since >= tm and hn * hn < _HEAD_ERR_MAX2, since
+        return False, _INF
+
+    def _end_lag(self) -> None:
+        """End the steadiness timer of :meth:`_bias_lag` (the attitude or the field's reference was changed from
+        outside the stages' own dynamics)."""
+        x = self._x
+        if x[_I_LAG] != _INF:
+            self._x = (*x[:_I_LAG], _INF, *x[_I_LAG + 1:])
 
     def _gyro_clipped(self, var_clip: float) -> None:
         """A gyro sample at its range: the attitude may be off by up to the range times the step (rad, squared:
@@ -716,7 +717,7 @@ class QuaternionCcf(MagGate):
         same with a fixed gain."""
         self.n_gyro_clipped += 1
         self._n_init = 1
-        self._lag_since = _INF
+        self._end_lag()
         self._var_incl += var_clip
         self._var_head += var_clip
 
@@ -839,7 +840,7 @@ class QuaternionCcf(MagGate):
             # offset. Heading follows over tau_mag_s: snapping it to the first applied offsets, which are refined for
             # a while, measured worse.)
             self._forget_mag_reference()
-            self._lag_since = _INF
+            self._end_lag()
 
     def _rotate_about_up(self, angle_rad: float) -> None:
         """:meth:`OrientationFilter.set_heading`'s turn: the LCF orientation and the NCF offset ``dn`` (world frame)
@@ -847,9 +848,8 @@ class QuaternionCcf(MagGate):
         magnetometer gate's world-frame filters and this block's field sum, so that the field does not look as if it
         moved."""
         super()._rotate_about_up(angle_rad)
-        self._lag_since = _INF
         c, s = math.cos(angle_rad), math.sin(angle_rad)
         x = CcfState._make(self._x)
         (dn_e, dn_n), (field_e, field_n) = about_up(c, s, x.dn_e, x.dn_n), about_up(c, s, x.field_e, x.field_n)
-        self._x = tuple(x._replace(dn_e=dn_e, dn_n=dn_n, field_e=field_e, field_n=field_n))
+        self._x = tuple(x._replace(dn_e=dn_e, dn_n=dn_n, field_e=field_e, field_n=field_n, lag_since_s=_INF))
         self._turn_mag_about_up(c, s)
