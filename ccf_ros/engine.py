@@ -306,7 +306,7 @@ class ImuEngine:
         hi.pair(f.quaternion if f.initialized else None,
                 (id(f), c[Status.INITIALIZED] + c[Status.REINITIALIZED_AFTER_GAP]), sum(c))
         if hi.jumped:
-            f.magnetometer_changed()
+            f.magnetometer_changed(hi.change_rel)
 
     def _far_ahead(self, t_s: float, t_last: float) -> float:
         """The stamp to use for a sample stamped far after the latest one (rare path)."""

@@ -4,17 +4,20 @@ Simulated data, through the engine (the node's and replay's path); BROAD trials 
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import pytest
 from conftest import SHARED, need_shared
 
+from ccf_ros.core import run_batch
 from ccf_ros.core.base import OrientationFilter
 from ccf_ros.core.hard_iron import HardIronEstimator
-from ccf_ros.core.metrics import summarize
+from ccf_ros.core.metrics import error_angles, fit_heading_offset, summarize
 from ccf_ros.engine import ImuEngine
 from ccf_ros.errors import ParameterError
 from ccf_ros.offline.evaluate import engine_orientations
-from ccf_ros.offline.simulate import SimData, dipole_field, generate, wander_path, with_mag_distortion
+from ccf_ros.offline.simulate import SimData, dipole_beside, dipole_field, generate, wander_path, with_mag_distortion
 from ccf_ros.settings import build
 
 OFFSET_T = np.array([30.0, -12.0, 8.0]) * 1e-6
@@ -50,9 +53,9 @@ def test_a_body_fixed_offset_is_found_applied_and_the_heading_recovers(hand, mon
     filt, adapter = build(ON)
     react = type(filt).magnetometer_changed
 
-    def spy(self: OrientationFilter) -> None:
-        calls.append(1)
-        react(self)
+    def spy(self: OrientationFilter, change_rel: float | None = None) -> None:
+        calls.append(change_rel)
+        react(self, change_rel)
 
     monkeypatch.setattr(type(filt), 'magnetometer_changed', spy)
     dist = with_mag_distortion(hand, OFFSET_T)
@@ -328,3 +331,48 @@ def test_a_first_offset_must_explain_the_pairs_or_have_many_behind_it(monkeypatc
     est._decide()
     assert (est.status().status == 'applied') == applied
     assert (est.offset is not None) == applied
+
+
+def _dipole(seed: int, rate: float) -> SimData:
+    """simulated_accuracy.py's dipole scenario: 300 A m² 1.2 m away, hand-guided over ±0.35 m, no offset."""
+    rng = np.random.default_rng(1000 + seed)
+    return generate(90.0, rate, seed, translation_m=0.1, field=dipole_beside(rng, 300.0, 1.2),
+                    path_m=wander_path(0.35, rng))
+
+
+def _fitted_heading(q, d: SimData) -> float:
+    ref = fit_heading_offset(q[d.moving], d.q_true[d.moving])
+    return float(np.degrees(np.sqrt(np.mean(error_angles(q[d.moving], ref)[1] ** 2))))
+
+
+@pytest.mark.parametrize(('seed', 'rate'), [(7, 100.0), (12, 40.0)])
+def test_a_spurious_first_offset_does_not_let_a_field_that_varies_with_position_steer(seed, rate):
+    """simulated_accuracy.py's dipole on the two of 60 seeds whose first offset is the field's, not the sensor's (19
+    and 9 % of the norm after 5 s of turning, explaining ~60 % of the pairs): each jump of the applied offset used to
+    reset the consistency check, and the field, accepted again, steered heading (3.06 against 6-D 1.76; 3.48
+    against 1.27). The wander the change can explain is taken off the check's scores, the rest stands: 9-D within
+    0.5 deg of 6-D (measured 1.55 against 1.76, 1.08 against 1.27)."""
+    d = _dipole(seed, rate)
+    worst, _ = _max_applied(ON, d)
+    assert worst > 3e-6  # the scenario: a spurious offset is applied (measured 10.3 and 5.7 uT)
+    q9, _, _ = run(ON, d.t_s, d.gyr, d.acc, d.mag)
+    q6 = run_batch(build({'use_mag': False})[0], d.t_s, d.gyr, d.acc, None).quat
+    assert _fitted_heading(q9, d) < _fitted_heading(q6, d) + 0.5
+
+
+def test_a_calibration_change_keeps_the_wander_it_cannot_explain():
+    """The consistency check's verdict after magnetometer_changed(e): the field of the dipole (seed 7, 100 Hz) has
+    wandered by ~10 deg RMS when the spurious offset comes (10.5 s); a change of e (share of the norm) explains at most
+    e/sqrt(2) rad of it. 0.6 (BROAD 33's magnet) explains it all: accepted again; 0.05 does not: still rejected;
+    unknown (None): everything forgotten, as before."""
+    d = _dipole(7, 100.0)
+    filt, _ = build(OFF)
+    n = int(np.searchsorted(d.t_s, d.t_s[0] + 10.4))
+    run_batch(filt, d.t_s[:n], d.gyr[:n], d.acc[:n], d.mag[:n])
+    assert not filt._mag_consistent and np.degrees(np.sqrt(filt._mag_band[6])) > 5.0
+    verdicts = {}
+    for change in (0.6, 0.05, None):
+        f = copy.deepcopy(filt)
+        f.magnetometer_changed(change)
+        verdicts[change] = f._mag_consistent
+    assert verdicts == {0.6: True, 0.05: False, None: True}

@@ -395,9 +395,10 @@ class OrientationFilter(ABC):
         saved by an earlier run; the orientation is kept. Returns False if this filter estimates no bias (ignored)."""
         return False
 
-    def magnetometer_changed(self) -> None:  # noqa: B027 (a hook with a default, not an abstract method)
-        """The magnetometer's calibration changed under the filter (an online hard-iron offset was applied or moved):
-        a filter that learns a reference of the field (norm, dip) can take the new one. No-op by default."""
+    def magnetometer_changed(self, change_rel: float | None = None) -> None:  # noqa: B027 (a hook with a default)
+        """The magnetometer's calibration changed under the filter (an online hard-iron offset was applied or moved;
+        ``change_rel``: how far off the samples before it may have been, over the field norm; None if not known): a
+        filter that learns a reference of the field (norm, dip) can take the new one. No-op by default."""
 
     def set_heading(self, yaw_rad: float) -> None:
         """Turn the estimate about the world's vertical so that its yaw (Z-Y-X, in ``params.world_frame``) is

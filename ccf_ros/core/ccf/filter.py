@@ -832,14 +832,16 @@ class QuaternionCcf(MagGate):
         # learns it afresh (see _rest_agrees).
         return True
 
-    def magnetometer_changed(self) -> None:
-        """The magnetometer's calibration changed (online hard iron applied): the disturbance gate's reference field
-        is learnt anew from the next samples instead of rejecting the corrected field for ``mag_reaccept_s``."""
+    def magnetometer_changed(self, change_rel: float | None = None) -> None:
+        """The magnetometer's calibration changed (online hard iron applied; ``change_rel``: how far off the samples
+        before it may have been, over the field norm, None if not known): the disturbance gate's reference field is
+        learnt anew from the next samples instead of rejecting the corrected field for ``mag_reaccept_s``; the
+        consistency check keeps the part of the field's wander that the change cannot explain
+        (:meth:`_mag_calibration_changed`)."""
         if self.initialized:
-            # (This also restarts the consistency check's band-pass: the field's world direction jumps with the
-            # offset. Heading follows over tau_mag_s: snapping it to the first applied offsets, which are refined for
-            # a while, measured worse.)
-            self._forget_mag_reference()
+            # (Heading follows over tau_mag_s: snapping it to the first applied offsets, which are refined for a
+            # while, measured worse.)
+            self._mag_calibration_changed(change_rel)
             self._end_lag()
 
     def _rotate_about_up(self, angle_rad: float) -> None:

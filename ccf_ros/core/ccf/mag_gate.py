@@ -122,6 +122,39 @@ class MagGate(OrientationFilter):
         self._mag_rej_t = -math.inf
         self._mag_rej_n2 = -1.0
 
+    def _mag_calibration_changed(self, change_rel: float | None) -> None:
+        """The magnetometer's calibration changed; the samples before it may have been off by ``change_rel`` of the
+        field norm (None: unknown, all is forgotten). The reference field is learnt anew, and the consistency check's
+        direction filters start again (the field's direction jumps with the offset), but its wander scores keep the
+        part that the change cannot explain.
+
+        An offset error of ``e`` (share of the norm) turning with the body moves the field's direction by at most
+        ``e`` rad; as a wobble its RMS is at most ``e / sqrt(2)`` (a sinusoid's), and the band-pass passes no more.
+        That much mean square is taken off both scores and the verdict is taken again from the rest. A field that
+        wandered by more stays rejected: one that varies with position, which a first offset fitted over a few
+        seconds of the path may partly follow. The wander that the offset caused goes with it. (Before, every jump
+        of the offset reset the check, and such a field was accepted again after each.)"""
+        band, curve, consistent = self._mag_band, self._mag_curve, self._mag_consistent
+        drift, mu = self._mag_drift, self._mag_u
+        self._forget_mag_reference()
+        if change_rel is None or band is None:
+            return
+        e2 = 0.5 * change_rel * change_rel
+        s2 = band[6] - e2 if band[6] > e2 else 0.0
+        s2c = curve[3] - e2 if curve[3] > e2 else 0.0
+        c = self._bcoef
+        r2 = s2 / (c.wander_var + drift[1] * drift[1])
+        r2c = s2c / (c.wander_var + c.drift_curve_var * mu)
+        if r2c > r2:
+            r2 = r2c
+        # (The filters are seeded again from the next block: a gap, as after a rejection, keeps the scores.)
+        self._mag_band = (*band[:6], s2)
+        self._mag_band_t = -math.inf
+        self._mag_curve = (*curve[:3], s2c)
+        self._mag_drift, self._mag_u = drift, mu
+        self._mag_weight = 1.0 / sqrt(r2) if r2 > 1.0 else 1.0
+        self._mag_consistent = r2 <= _REJECT2 if consistent else r2 < 0.25 * _REJECT2
+
     def _turn_mag_about_up(self, c: float, s: float) -> None:
         """The gate's world-frame state turned about up by the angle of cosine ``c`` and sine ``s`` (the attitude is
         turned so: a heading set), so that the field seen through the attitude does not look as if it moved."""
