@@ -165,21 +165,27 @@ def test_broad_30_is_not_worse_and_33_is_better():
     from ccf_ros.offline.bagio import read_bools, read_imu_arrays, read_orientations
     from ccf_ros.offline.evaluate import align, mask_at
 
-    def headings(trial):
+    def headings(trial, step=1, cases=(OFF, ON)):
         imu = read_imu_arrays(trial)
         t_ref, q_ref = read_orientations(trial, '/ground_truth/pose')
         mask = mask_at(t_ref, *read_bools(trial, '/ground_truth/moving'))
         out = []
-        for settings in (OFF, ON):
-            q, eng, _ = run(settings, imu.t_s, imu.gyr, imu.acc, imu.mag)
+        t, gyr, acc, mag = imu.t_s[::step], imu.gyr[::step], imu.acc[::step], imu.mag[::step]
+        for settings in cases:
+            q, eng, _ = run(settings, t, gyr, acc, mag)
             ok = np.all(np.isfinite(q), axis=1)
-            out.append(summarize(align(imu.t_s[ok], q[ok], t_ref, q_ref), q_ref, mask).heading_rmse_deg)
+            out.append(summarize(align(t[ok], q[ok], t_ref, q_ref), q_ref, mask).heading_rmse_deg)
         return out, eng.hard_iron_status()
 
     (off30, on30), s30 = headings(need_shared(SHARED / '30_disturbed_stationary_magnet_C'))
-    assert on30 <= off30 * 1.001 and s30.offset == (0.0, 0.0, 0.0)  # measured 1.221 both: never applied
-    (off33, on33), _ = headings(need_shared(SHARED / '33_disturbed_attached_magnet_2cm'))
-    assert on33 < 0.75 * off33  # measured 1.629 vs 2.524 deg (0.65x)
+    assert on30 <= off30 * 1.001 and s30.offset == (0.0, 0.0, 0.0)  # measured 1.139 both: never applied
+    trial33 = need_shared(SHARED / '33_disturbed_attached_magnet_2cm')
+    (off33, on33), _ = headings(trial33)
+    assert on33 < 0.65 * off33  # measured 1.554 vs 2.918 deg (0.53x)
+    # At 48 Hz (every 6th sample): a refinement of the magnet's offset while the corrected field still wanders by ~4°
+    # must not keep that field out (the calibration change's size is the offset's, not only the jump's: 4.07 deg).
+    (on33_48,), _ = headings(trial33, 6, (ON,))
+    assert on33_48 < 3.65  # measured 3.05 deg
 
 
 def test_the_node_diagnostics_show_the_hard_iron_status(hand):
@@ -345,19 +351,21 @@ def _fitted_heading(q, d: SimData) -> float:
     return float(np.degrees(np.sqrt(np.mean(error_angles(q[d.moving], ref)[1] ** 2))))
 
 
-@pytest.mark.parametrize(('seed', 'rate'), [(7, 100.0), (12, 40.0)])
-def test_a_spurious_first_offset_does_not_let_a_field_that_varies_with_position_steer(seed, rate):
+@pytest.mark.parametrize(('seed', 'rate', 'measured'), [(7, 100.0, 1.55), (12, 40.0, 1.08), (7, 286.0, 0.29)])
+def test_a_spurious_first_offset_does_not_let_a_field_that_varies_with_position_steer(seed, rate, measured):
     """simulated_accuracy.py's dipole on the two of 60 seeds whose first offset is the field's, not the sensor's (19
     and 9 % of the norm after 5 s of turning, explaining ~60 % of the pairs): each jump of the applied offset used to
-    reset the consistency check, and the field, accepted again, steered heading (3.06 against 6-D 1.76; 3.48
-    against 1.27). The wander the change can explain is taken off the check's scores, the rest stands: 9-D within
-    0.5 deg of 6-D (measured 1.55 against 1.76, 1.08 against 1.27)."""
+    reset the consistency check, and the field, accepted again, steered heading (3.06 against 6-D 1.76; 3.48 against
+    1.27; 5.51 against 0.32). The part of the wander that the change can explain is taken off the check's scores,
+    and the rest stands: 9-D within 0.5 deg of 6-D and within 20 % of ``measured`` (deg; 0.77 at 286 Hz if
+    0.75 e² were taken off, 1.78 with e²)."""
     d = _dipole(seed, rate)
     worst, _ = _max_applied(ON, d)
-    assert worst > 3e-6  # the scenario: a spurious offset is applied (measured 10.3 and 5.7 uT)
+    assert worst > 3e-6  # the scenario: a spurious offset is applied (measured 10.3, 5.7 and 10.0 uT)
     q9, _, _ = run(ON, d.t_s, d.gyr, d.acc, d.mag)
     q6 = run_batch(build({'use_mag': False})[0], d.t_s, d.gyr, d.acc, None).quat
-    assert _fitted_heading(q9, d) < _fitted_heading(q6, d) + 0.5
+    h9 = _fitted_heading(q9, d)
+    assert h9 < _fitted_heading(q6, d) + 0.5 and h9 < 1.2 * measured
 
 
 def test_a_calibration_change_keeps_the_wander_it_cannot_explain():

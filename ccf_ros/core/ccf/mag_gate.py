@@ -128,12 +128,16 @@ class MagGate(OrientationFilter):
         direction filters start again (the field's direction jumps with the offset), but its wander scores keep the
         part that the change cannot explain.
 
-        An offset error of ``e`` (share of the norm) turning with the body moves the field's direction by at most
-        ``e`` rad; as a wobble its RMS is at most ``e / sqrt(2)`` (a sinusoid's), and the band-pass passes no more.
-        That much mean square is taken off both scores and the verdict is taken again from the rest. A field that
-        wandered by more stays rejected: one that varies with position, which a first offset fitted over a few
-        seconds of the path may partly follow. The wander that the offset caused goes with it. (Before, every jump
-        of the offset reset the check, and such a field was accepted again after each.)"""
+        An offset error of ``e`` (share of the norm) turning with the body moves the field's direction by up to
+        ``asin(e)`` (``e`` rad for a small one). ``e² / 2`` (a sinusoidal wobble of amplitude ``e``) is taken off
+        both scores, and the verdict is taken again from the rest. That is a typical share of the wander such an
+        error causes, not the largest: a turn about the vertical at 60° dip gives ~0.7 e² through the band-pass.
+        A field that wandered by more stays rejected: one that varies with position, which a first offset fitted
+        over a few seconds of the path may partly follow. The wander that the offset caused mostly goes with it, and
+        the rest decays with the score. On a plateau: 0.17-0.6 e² give the same BROAD and dipole figures; 0.1 e²
+        keeps BROAD 33's corrected field out (heading 1.55 -> 1.66°), 0.75 e² lets a dipole's field back in (0.29 ->
+        0.77° at 286 Hz; doc/history/2026-12-07-session24.md). (Before, every jump of the offset reset the check,
+        and such a field was accepted again after each.)"""
         band, curve, consistent = self._mag_band, self._mag_curve, self._mag_consistent
         drift, mu = self._mag_drift, self._mag_u
         self._forget_mag_reference()
