@@ -86,7 +86,13 @@ class MagGate(OrientationFilter):
     _var_head: float
 
     def _forget_mag_reference(self) -> None:
-        """No reference field: the next usable magnetometer sample becomes it (see :meth:`_mag_rejected`)."""
+        """No reference field: the next usable magnetometer sample becomes it (see :meth:`_mag_rejected`); nor any
+        memory of the field's motion."""
+        self._forget_mag_field()
+        self._forget_mag_wander()
+
+    def _forget_mag_field(self) -> None:
+        """The reference field and the steadiness timer forgotten (the consistency check's memory is kept)."""
         self._mag_ref = (0.0, 0.0)
         # Bounds that accept nothing, so that the first sample goes through _mag_rejected and sets the reference.
         self._mag_bounds = (math.inf, -math.inf, 2.0, -2.0)
@@ -97,6 +103,16 @@ class MagGate(OrientationFilter):
         self._mag_learn_s = 0.0
         self._mag_learn_n = 0
         self.mag_disturbed = False
+        # A leaky timer of how long the field has steered heading, s: + the time of each block, - STEADY_LOSS x the
+        # time between two magnetometer samples both rejected, within [0, MAG_BAND_S[1]]. Below the top, the field has
+        # not shown long enough that it stays put for its heading error to teach the bias or re-acquire heading at
+        # once (see QuaternionCcf._step). And the stamp (s) and squared norm (sensor unit²) of the last rejected sample.
+        self._mag_steady_s = 0.0
+        self._mag_rej_t = -math.inf
+        self._mag_rej_n2 = -1.0
+
+    def _forget_mag_wander(self) -> None:
+        """The consistency check's memory of the field's motion forgotten: its filters, scores and verdict."""
         # The field's world direction band-passed (two unit-vector low-passes and the squared deviation's low-pass;
         # None: seeded by the next block), and the verdict.
         self._mag_band: tuple[float, ...] | None = None
@@ -114,13 +130,6 @@ class MagGate(OrientationFilter):
         self._mag_u = 0.0
         # The heading blend's gain relative to tau_mag_s's (1: the field is as steady as a homogeneous one).
         self._mag_weight = 1.0
-        # A leaky timer of how long the field has steered heading, s: + the time of each block, - STEADY_LOSS x the
-        # time between two magnetometer samples both rejected, within [0, MAG_BAND_S[1]]. Below the top, the field has
-        # not shown long enough that it stays put for its heading error to teach the bias or re-acquire heading at
-        # once (see QuaternionCcf._step). And the stamp (s) and squared norm (sensor unit²) of the last rejected sample.
-        self._mag_steady_s = 0.0
-        self._mag_rej_t = -math.inf
-        self._mag_rej_n2 = -1.0
 
     def _mag_calibration_changed(self, change_rel: float | None) -> None:
         """The magnetometer's calibration changed; the samples before it may have been off by ``change_rel`` of the
@@ -138,26 +147,20 @@ class MagGate(OrientationFilter):
         keeps BROAD 33's corrected field out (heading 1.55 -> 1.66°), 0.75 e² lets a dipole's field back in (0.29 ->
         0.77° at 286 Hz; doc/history/2026-12-07-session24.md). (Before, every jump of the offset reset the check,
         and such a field was accepted again after each.)"""
-        band, curve, consistent = self._mag_band, self._mag_curve, self._mag_consistent
-        drift, mu = self._mag_drift, self._mag_u
-        self._forget_mag_reference()
+        self._forget_mag_field()
+        band = self._mag_band
         if change_rel is None or band is None:
+            self._forget_mag_wander()
             return
         e2 = 0.5 * change_rel * change_rel
         s2 = band[6] - e2 if band[6] > e2 else 0.0
+        curve = self._mag_curve
         s2c = curve[3] - e2 if curve[3] > e2 else 0.0
-        c = self._bcoef
-        r2 = s2 / (c.wander_var + drift[1] * drift[1])
-        r2c = s2c / (c.wander_var + c.drift_curve_var * mu)
-        if r2c > r2:
-            r2 = r2c
         # (The filters are seeded again from the next block: a gap, as after a rejection, keeps the scores.)
         self._mag_band = (*band[:6], s2)
         self._mag_band_t = -math.inf
         self._mag_curve = (*curve[:3], s2c)
-        self._mag_drift, self._mag_u = drift, mu
-        self._mag_weight = 1.0 / sqrt(r2) if r2 > 1.0 else 1.0
-        self._mag_consistent = r2 <= _REJECT2 if consistent else r2 < 0.25 * _REJECT2
+        self._mag_judge(s2, s2c, self._mag_drift[1], self._mag_u)
 
     def _turn_mag_about_up(self, c: float, s: float) -> None:
         """The gate's world-frame state turned about up by the angle of cosine ``c`` and sine ``s`` (the attitude is
@@ -276,6 +279,13 @@ class MagGate(OrientationFilter):
         de, dn_, du = de - (be - fe), dn_ - (bn - fn), du - (bu - fu)
         s2c += c.k_score * (de * de + dn_ * dn_ + du * du - s2c)
         self._mag_curve = (fe, fn, fu, s2c)
+        self._mag_judge(s2, s2c, xb, mu)
+
+    def _mag_judge(self, s2: float, s2c: float, xb: float, mu: float) -> None:
+        """The verdict from the wander scores ``s2`` (the band's) and ``s2c`` (its curvature's), rad², against their
+        allowances (``xb``: the drift an unknown bias shows in the band, rad; ``mu``: the bias's relative variance the
+        curvature allows for): the blend's weight and, with hysteresis, whether the field steers heading at all."""
+        c = self._bcoef
         # The heading reference is as noisy as the field wanders: the blend's time constant (and the bias estimate's
         # heading noise) grows with the wander beyond a homogeneous field's, which includes the drift an unknown
         # bias gives the attitude.
