@@ -21,9 +21,13 @@ STEADY_LOSS = 1.0 + _LEAK
 _REJECT2 = MAG_REJECT_SIGMAS**2
 
 
-def _turned(ce: float, cn: float, cu: float, v: tuple[float, ...]) -> tuple[float, ...]:
-    """``v``, consecutive (east, north, up) vectors, each turned by the rotation vector ``(ce, cn, cu)`` (rad;
-    Rodrigues' formula)."""
+def _turned(
+    ce: float, cn: float, cu: float, ae: float, an: float, au: float, be: float, bn: float, bu: float, fe: float,
+    fn: float, fu: float,
+) -> tuple[float, float, float, float, float, float, float, float, float]:
+    """The three (east, north, up) vectors ``a``, ``b`` and ``f`` each turned by the rotation vector ``(ce, cn, cu)``
+    (rad; Rodrigues' formula). Written out per vector: a loop over them, building a list, cost as much as the turns
+    (this runs once per bias block, ~10 % of the 9-D update's time in all before)."""
     t2 = ce * ce + cn * cn + cu * cu
     if t2 < 1e-8:
         # sin(t)/t and (1 - cos(t))/t² to well below 1e-16 for |t| < 1e-4.
@@ -31,13 +35,15 @@ def _turned(ce: float, cn: float, cu: float, v: tuple[float, ...]) -> tuple[floa
     else:
         t = sqrt(t2)
         s, k = math.sin(t) / t, (1.0 - math.cos(t)) / t2
-    out: list[float] = []
-    for i in range(0, len(v), 3):
-        x, y, z = v[i], v[i + 1], v[i + 2]
-        px, py, pz = cn * z - cu * y, cu * x - ce * z, ce * y - cn * x
-        out += (x + s * px + k * (cn * pz - cu * py), y + s * py + k * (cu * px - ce * pz),
-                z + s * pz + k * (ce * py - cn * px))
-    return tuple(out)
+    # v + s (c x v) + k c x (c x v), p = c x v.
+    pa, pb, pc = cn * au - cu * an, cu * ae - ce * au, ce * an - cn * ae
+    qa, qb, qc = cn * bu - cu * bn, cu * be - ce * bu, ce * bn - cn * be
+    ra, rb, rc = cn * fu - cu * fn, cu * fe - ce * fu, ce * fn - cn * fe
+    return (
+        ae + s * pa + k * (cn * pc - cu * pb), an + s * pb + k * (cu * pa - ce * pc), au + s * pc + k * (ce * pb - cn * pa),
+        be + s * qa + k * (cn * qc - cu * qb), bn + s * qb + k * (cu * qa - ce * qc), bu + s * qc + k * (ce * qb - cn * qa),
+        fe + s * ra + k * (cn * rc - cu * rb), fn + s * rb + k * (cu * ra - ce * rc), fu + s * rc + k * (ce * rb - cn * ra),
+    )
 
 
 def about_up(c: float, s: float, e: float, n: float) -> tuple[float, float]:
@@ -262,7 +268,7 @@ class MagGate(OrientationFilter):
         # with them, so that only the field's own motion shows. Exactly, not to first order: a heading re-acquired
         # (a new field) turns by up to 180° in one block, and a first-order turn by 0.5 rad leaves the states 2° and
         # 12 % off, which the band then reads as the field's motion for its 8 s.
-        ae, an, au, be, bn, bu, fe, fn, fu = _turned(ce, cn, cu, (ae, an, au, be, bn, bu, fe, fn, fu))
+        ae, an, au, be, bn, bu, fe, fn, fu = _turned(ce, cn, cu, ae, an, au, be, bn, bu, fe, fn, fu)
         k1, k2 = c.k_band1, c.k_band2
         ae += k1 * (ue - ae)
         an += k1 * (un - an)
