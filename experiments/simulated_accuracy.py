@@ -36,13 +36,12 @@ from _trials import map_trials, run_9d
 from ccf_ros.core import run_batch
 from ccf_ros.core.metrics import error_angles, fit_heading_offset, fitted_total_rmse_deg, summarize
 from ccf_ros.offline.simulate import (
-    dipole_beside,
     dipole_field,
     field_change,
     generate,
+    generate_near_dipole,
     generate_swing,
     generate_vehicle,
-    wander_path,
 )
 from ccf_ros.settings import build
 
@@ -89,14 +88,10 @@ def _away(t: np.ndarray) -> np.ndarray:
 
 def mag_env_data(name: str, rate: float, seed: int, *, clean: bool = False) -> Any:
     """The recording of magnetic environment ``name`` (``clean``: the same motion and noise in the uniform field)."""
-    rng = np.random.default_rng(1000 + seed)
     if name == 'dipole':
         # Hand-guided: the hand's wobble about a point that wanders slowly (0.02-0.08 Hz) over ±0.35 m, so the
-        # sensor spends seconds in each part of a field that a horizontal dipole 1.2 m away turns (its moment
-        # across the line to the workspace: the field turns with little change of norm and dip).
-        dipole = dipole_beside(rng, 300.0, 1.2)
-        f = None if clean else dipole
-        return generate(90.0, rate, seed, translation_m=0.1, field=f, path_m=wander_path(0.35, rng))
+        # sensor spends seconds in each part of a field that a horizontal dipole 1.2 m away turns.
+        return generate_near_dipole(rate, seed, uniform=clean)
     if name == 'new building':
         f = None if clean else field_change(T_CHANGE_S, 0.8, np.radians(8.0))
         return generate(T_CHANGE_S + 120.0, rate, seed, field=f)

@@ -17,7 +17,7 @@ from ccf_ros.core.metrics import error_angles, fit_heading_offset, summarize
 from ccf_ros.engine import ImuEngine
 from ccf_ros.errors import ParameterError
 from ccf_ros.offline.evaluate import engine_orientations
-from ccf_ros.offline.simulate import SimData, dipole_beside, dipole_field, generate, wander_path, with_mag_distortion
+from ccf_ros.offline.simulate import SimData, dipole_field, generate, generate_near_dipole, with_mag_distortion
 from ccf_ros.settings import build
 
 OFFSET_T = np.array([30.0, -12.0, 8.0]) * 1e-6
@@ -273,7 +273,7 @@ def test_steel_near_the_workspace_is_never_applied():
     """simulated_accuracy.py's dipole scenario (300 A m² 1.2 m away, hand-guided over ±0.35 m, no offset; seed 1):
     without the level test (the field's norm and vertical component with the offset subtracted must stay within 5 %)
     and the explained-share rule it applies 10 uT."""
-    worst, _ = _max_applied(ON, _dipole(1, 100.0))
+    worst, _ = _max_applied(ON, generate_near_dipole(100.0, 1))
     assert worst == 0.0
 
 
@@ -334,13 +334,6 @@ def test_a_first_offset_must_explain_the_pairs_or_have_many_behind_it(monkeypatc
     assert (est.offset is not None) == applied
 
 
-def _dipole(seed: int, rate: float) -> SimData:
-    """simulated_accuracy.py's dipole scenario: 300 A m² 1.2 m away, hand-guided over ±0.35 m, no offset."""
-    rng = np.random.default_rng(1000 + seed)
-    return generate(90.0, rate, seed, translation_m=0.1, field=dipole_beside(rng, 300.0, 1.2),
-                    path_m=wander_path(0.35, rng))
-
-
 def _fitted_heading(q, d: SimData) -> float:
     ref = fit_heading_offset(q[d.moving], d.q_true[d.moving])
     return float(np.degrees(np.sqrt(np.mean(error_angles(q[d.moving], ref)[1] ** 2))))
@@ -354,7 +347,7 @@ def test_a_spurious_first_offset_does_not_let_a_field_that_varies_with_position_
     1.27; 5.51 against 0.32). The part of the wander that the change can explain is taken off the check's scores,
     and the rest stands: 9-D within 0.5 deg of 6-D and within 20 % of ``measured`` (deg; 0.77 at 286 Hz if
     0.75 e² were taken off, 1.78 with e²)."""
-    d = _dipole(seed, rate)
+    d = generate_near_dipole(rate, seed)
     worst, _ = _max_applied(ON, d)
     assert worst > 3e-6  # the scenario: a spurious offset is applied (measured 10.3, 5.7 and 10.0 uT)
     q9, _, _ = run(ON, d.t_s, d.gyr, d.acc, d.mag)
@@ -368,7 +361,7 @@ def test_a_calibration_change_keeps_the_wander_it_cannot_explain():
     wandered by ~10 deg RMS when the spurious offset comes (10.5 s); a change of e (share of the norm) explains at most
     e/sqrt(2) rad of it. 0.6 (BROAD 33's magnet) explains it all: accepted again; 0.05 does not: still rejected;
     unknown (None): everything forgotten, as before."""
-    d = _dipole(7, 100.0)
+    d = generate_near_dipole(100.0, 7)
     filt, _ = build(OFF)
     n = int(np.searchsorted(d.t_s, d.t_s[0] + 10.4))
     run_batch(filt, d.t_s[:n], d.gyr[:n], d.acc[:n], d.mag[:n])

@@ -258,6 +258,18 @@ def generate(
     return SimData(t_s=t0_s + tr, q_true=q, gyr=gyr, acc=acc, mag=mag, bias=bias, moving=tr >= rest)
 
 
+def generate_near_dipole(rate_hz: float, seed: int = 0, *, uniform: bool = False) -> SimData:
+    """Issue 23's field that varies with position: 90 s of hand-guided motion (:func:`generate`'s, 0.1 m translations)
+    about a point that wanders slowly over ±0.35 m (:func:`wander_path`), beside a 300 A m² dipole 1.2 m away whose
+    moment lies across the line to the workspace (:func:`dipole_beside`: the field turns by tens of degrees with
+    little change of norm and dip). ``uniform``: the same motion and noise in the uniform field. The layout and path
+    are drawn from ``numpy.random.default_rng(1000 + seed)``, the motion and noise from ``seed``."""
+    rng = np.random.default_rng(1000 + seed)
+    dipole = dipole_beside(rng, 300.0, 1.2)
+    return generate(90.0, rate_hz, seed, translation_m=0.1, field=None if uniform else dipole,
+                    path_m=wander_path(0.35, rng))
+
+
 def generate_vehicle(
     duration_s: float = 300.0,
     rate_hz: float = 100.0,
