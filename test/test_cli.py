@@ -223,6 +223,8 @@ def test_other_input_errors_are_one_line(sim_bag, tmp_path, capsys):
         (['eval', str(sim_bag), '--reference', '/ground_truth/pose'], '/imu/data'),  # no estimate in a raw bag
         (['eval', str(sim_bag), '--reference', '/ground_truth/pose', '--estimate-topic', '/imu/data_raw'],
          'marks its orientation unknown'),  # a driver's raw Imu: orientation_covariance[0] = -1
+        (['eval', str(sim_bag), '--reference', '/ground_truth/pose', '--estimate-topic', '/imu/mag'],
+         '/imu/mag: sensor_msgs/msg/MagneticField holds no orientation'),  # the estimate, not the reference
         (['eval', str(sim_bag), '--reference', '/ground_truth/pose', '--estimate-topic', '/ground_truth/pose',
           '--mask-topic', '/imu/mag'], 'expected std_msgs/msg/Bool'),
         (['eval', str(sim_bag), '--reference', '/ground_truth/pose', '--estimate-topic', '/ground_truth/pose',

@@ -408,7 +408,7 @@ def orientation_of(msg: Any, msgtype: str) -> tuple[float, float, float, float]:
     elif msgtype.endswith('/Odometry'):
         o = msg.pose.pose.orientation
     else:
-        raise BagError(f'unsupported reference type {msgtype} (use Imu, PoseStamped, QuaternionStamped, Odometry)')
+        raise BagError(f'{msgtype} holds no orientation (use an Imu, PoseStamped, QuaternionStamped or Odometry topic)')
     return from_xyzw(o.x, o.y, o.z, o.w)
 
 
@@ -434,7 +434,10 @@ def read_orientations(path: str | Path, topic: str) -> tuple[np.ndarray, np.ndar
             n_unknown += 1
             q.append(nan4)
         else:
-            q.append(orientation_of(msg, conn.msgtype))
+            try:
+                q.append(orientation_of(msg, conn.msgtype))
+            except BagError as err:
+                raise BagError(f'{path}: {topic}: {err}') from None
         t.append(stamp_s(msg.header))
     if t and n_unknown == len(t):
         raise BagError(f'{path}: every message on {topic} marks its orientation unknown (orientation_covariance[0] '
