@@ -92,6 +92,13 @@ class EngineSettings:
         check_params(self)
         rotation_matrix('mount_rotation', self.mount_rotation)
         rotation_matrix('mag_rotation', self.mag_rotation)
+        s = self.mag_soft_iron
+        det = s[0] * (s[4] * s[8] - s[5] * s[7]) - s[1] * (s[3] * s[8] - s[5] * s[6]) + s[2] * (s[3] * s[7] - s[4] * s[6])
+        # A calibration scales and shears the field; a singular matrix flattens it, and heading is lost for good
+        # (every sample would read as a field in one plane or none at all).
+        if not abs(det) > 1e-9 * max(abs(a) for a in s) ** 3:
+            raise ValueError(f'mag_soft_iron must be an invertible 3x3 matrix (row-major), got {list(s)!r} '
+                             f'(determinant {det:.3g})')
 
     @classmethod
     def from_values(cls, values: Mapping[str, Any]) -> EngineSettings:

@@ -158,6 +158,8 @@ def test_bag_corrupt_in_the_middle_is_one_line_and_no_half_bag(sim_bag, tmp_path
         ('no_such_parameter=1', ('no_such_parameter',)),
         ('kp=3', ('kp', 'does not apply')),  # an euler gain, and the default filter is the quaternion CCF
         ('tau_acc_s', ('--param expects NAME=VALUE',)),
+        # A singular soft-iron matrix (a row repeated) would flatten the field: heading lost for good.
+        ('mag_soft_iron=[1,0,0,0,1,0,1,0,0]', ('mag_soft_iron', 'invertible')),
     ],
 )
 def test_a_bad_param_is_one_line_naming_it(sim_bag, tmp_path, capsys, param, expected):
