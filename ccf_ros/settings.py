@@ -47,7 +47,7 @@ class EngineSettings:
     mag_bias_y: float = param(0.0, 'T', 'magnetometer hard-iron offset, y, T', -10.0, 10.0)
     mag_bias_z: float = param(0.0, 'T', 'magnetometer hard-iron offset, z, T', -10.0, 10.0)
     mag_soft_iron: tuple[float, ...] = param(
-        _IDENTITY3, '-', 'magnetometer soft-iron matrix, row-major 3x3, applied after the offset: m = S (m_raw - b)',
+        _IDENTITY3, '-', 'magnetometer soft-iron matrix, row-major 3x3, invertible, applied after the offset: m = S (m_raw - b)',
         -1e9, 1e9, what='9 finite numbers (row-major 3x3)')
     yaw_offset: float = param(
         0.0, 'rad', 'output turned by yaw_offset - declination about world z (down in ned), rad (imu_tools semantics)',
