@@ -217,7 +217,12 @@ class QuaternionCcf(MagGate):
             # A longer rest_min_s: not at rest until the timer reaches it (the NCF integral runs meanwhile).
             self.at_rest = False
         if self._mag_have_ref and self._mag_learn_s <= 0.0:
-            self._mag_bounds = self._bounds(*self._mag_ref)
+            recheck = self._mag_recheck
+            if recheck:
+                # (Measured again: the bounds that decide meanwhile are kept with it.)
+                self._mag_recheck = (*self._bounds(*self._mag_ref), *recheck[4:])
+            else:
+                self._mag_bounds = self._bounds(*self._mag_ref)
 
     def _init(self, ax: float, ay: float, az: float, mx: float, my: float, mz: float, mag_ok: bool) -> None:
         q: Quat | None = quat_from_acc_mag_scalar(ax, ay, az, mx, my, mz, mag_ok)
@@ -314,7 +319,13 @@ class QuaternionCcf(MagGate):
             k_mag = kn if kn > c.k_mag else c.k_mag
             # The low-pass starts as a running mean too (0.0: the Butterworth filter has taken over).
             k_lp = kn if kn > c.k_lp else 0.0
-            self._n_init = ni if kn > c.k_min else 0
+            if kn > c.k_min:
+                self._n_init = ni
+            else:
+                self._n_init = 0
+                if self._mag_recheck == ():
+                    # The reference learnt while the tilt converged: its dip is measured again from here.
+                    self._mag_recheck_begin()
         else:
             k_acc = c.k_acc
             k_mag = c.k_mag
@@ -353,7 +364,8 @@ class QuaternionCcf(MagGate):
             wu += mu
             w_n += 1
             # (Whether the previous magnetometer sample was rejected, read before the gate below may set it; an
-            # accepted sample leaves it False either way: _mag_rejected accepts only through _set_mag_reference.)
+            # accepted sample leaves it False either way: _mag_rejected accepts one through _set_mag_reference, or
+            # without touching it while the reference is learnt or measured again, and a True left is reset below.)
             was_disturbed = self.mag_disturbed
             if (lo2 <= mag_n2 <= hi2 and lo_dip <= sin_dip <= hi_dip) or self._mag_rejected(
                 dt, norm, sin_dip, me, mn, mu, gx - bx, gy - by, gz - bz
@@ -476,6 +488,11 @@ class QuaternionCcf(MagGate):
                 and (not ni or (not k_lp and nx * nx + ny * ny + nz * nz < cb.start_tilt2)),
                 self.at_rest,
             )
+            if self._mag_learn_s > 0.0:
+                # The reference field is being learnt: the tilt's corrections meanwhile (east, north; MagGate
+                # _mag_rejected: whether its dip is measured again after the start-up).
+                te, tn = self._mag_learn_tilt
+                self._mag_learn_tilt = (te + r0x * scx + r0y * scy + r0z * scz, tn + r1x * scx + r1y * scy + r1z * scz)
             if w_n and k_lp == 0.0:
                 # Once the tilt is found (the gravity low-pass has handed over from its running mean), not only after
                 # the whole start-up: the LCF's corrections are taken out, so the field's own motion shows as well
