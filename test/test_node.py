@@ -906,6 +906,25 @@ def test_node_rejects_invalid_startup_parameters():
     assert r.returncode != 0 and 'tau_acc_s' in (r.stdout + r.stderr)
 
 
+@pytest.mark.parametrize('ros_args, reason', [
+    (['--params-file', '/nonexistent/ccf.yaml'], "params file: '--params-file /nonexistent/ccf.yaml'. Error: Error "
+                                                 'opening YAML file'),
+    (['--params-file', 'MIXED'], 'Sequence should be of same type'),  # [0, 0, 1.57]: integers and a real
+    (['-p', 'fixed_frame:='], "Couldn't parse parameter override rule: '-p fixed_frame:='"),
+    (['--bogus'], "unknown ROS arguments: ['--bogus']"),
+], ids=['missing-file', 'mixed-list', 'empty-value', 'unknown-argument'])
+def test_a_command_line_rclpy_refuses_is_one_line_and_exit_2(tmp_path, ros_args, reason):
+    """rclpy.init fails on it, before any signal handler of rclpy's: not taken for a signal (was a silent exit 0,
+    or a traceback for an unknown argument)."""
+    mixed = tmp_path / 'mixed.yaml'
+    mixed.write_text('ccf_node:\n  ros__parameters:\n    mount_rotation: [0, 0, 1.57]\n')
+    ros_args = [str(mixed) if a == 'MIXED' else a for a in ros_args]
+    r = subprocess.run(_node_command() + ['--ros-args', *ros_args], capture_output=True, text=True, timeout=30)
+    errors = [line for line in (r.stdout + r.stderr).splitlines() if 'ccf_node: error:' in line]
+    assert r.returncode == 2 and len(errors) == 1 and reason in errors[0], r.stdout + r.stderr
+    assert 'Traceback' not in r.stderr and '.c:' not in errors[0]  # (no rcl source locations)
+
+
 def test_an_error_while_running_is_a_traceback_not_a_startup_parameter_error(monkeypatch):
     """Only what the start-up raises is the user's parameters (one line, exit 2); a ValueError while spinning is a
     bug and propagates with its traceback."""

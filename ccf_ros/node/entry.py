@@ -3,6 +3,7 @@ name them through :mod:`ccf_ros.node`)."""
 
 from __future__ import annotations
 
+import re
 import signal
 import threading
 from typing import Any
@@ -18,6 +19,7 @@ from .lifecycle import CcfLifecycleNode
 from .node import CcfNode
 
 RCLError = _rclpy.RCLError
+UnknownROSArgsError = _rclpy.UnknownROSArgsError
 
 
 def _is_startup_error(err: BaseException) -> bool:
@@ -26,6 +28,15 @@ def _is_startup_error(err: BaseException) -> bool:
         return True
     # rclpy's QoS override of an unknown policy value (e.g. reliability: sometimes)
     return isinstance(err, RuntimeError) and str(err).startswith('Unexpected QoS override')
+
+
+def _command_line_error(err: BaseException) -> str:
+    """The reason ``rclpy.init`` refused the command line, in one line (rcl itself logs only "Failed to parse global
+    arguments"): rcl's message without its source locations (and its "Error: error not set" when it has no more to
+    say), or the unknown ROS arguments."""
+    if isinstance(err, UnknownROSArgsError):
+        return f'unknown ROS arguments: {err}'
+    return re.sub(r', at \S+:\d+|\. Error: error not set', '', str(err))
 
 
 class _StopSignal:
@@ -61,7 +72,8 @@ class _StopSignal:
 
 def main(args: list[str] | None = None, profile: str = 'ccf_node', lifecycle: bool = False) -> None:
     """Entry point of ``ccf_node`` / ``ros2 run ccf_ros ccf_node`` (and, with ``profile``, of the drop-ins; with
-    ``lifecycle``, of ``ccf_lifecycle_node``). Exits 0 on SIGINT/SIGTERM at any stage after start-up began."""
+    ``lifecycle``, of ``ccf_lifecycle_node``). Exits 0 on SIGINT/SIGTERM at any stage after start-up began, 2 with
+    one line on a command line or start-up parameter that is invalid."""
     node: CcfNode | None = None
     executor: LeanExecutor | None = None
     initialized = False
@@ -80,6 +92,12 @@ def main(args: list[str] | None = None, profile: str = 'ccf_node', lifecycle: bo
         except (KeyboardInterrupt, ExternalShutdownException):
             pass
         except Exception as err:
+            if not initialized and isinstance(err, (RCLError, UnknownROSArgsError)):
+                # rclpy.init refused the command line (a parameters file or -p value that does not parse, an unknown
+                # argument); no signal can make it fail (rclpy's handlers come after it), and the context is not ok,
+                # which the next test would take for a signal.
+                print(f'{profile}: error: {_command_line_error(err)}', flush=True)
+                raise SystemExit(2) from None
             if stop.received is not None or (isinstance(err, RCLError) and not rclpy.ok()):
                 # A signal: rclpy's signal thread shuts the context down concurrently, and whatever rclpy did on it
                 # at that moment (making the node, building a wait set) raised RCLError ('the given context is not
