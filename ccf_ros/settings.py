@@ -329,6 +329,8 @@ def _coerce(p: Parameter, value: Any) -> Any:
         return v
     if isinstance(p.default, tuple):
         vals = parse_numbers(name, value, p.what)
+        if len(vals) not in p.lengths:  # whichever filter is selected, as per_axis above
+            raise ParameterError(f'{name} must be {p.what}, got {value!r}')
         if p.range and not all(lo <= x <= hi for x in vals):
             raise ParameterError(f'{name} must be within {_range_text(p)} each, got {value!r}')
         return vals

@@ -666,6 +666,32 @@ def test_parameters_validated_live_and_applied_without_reset(context, inputs):
         h.close()
 
 
+def test_text_for_a_number_and_a_value_for_a_filter_not_selected_are_refused(context):
+    """A real parameter is dynamically typed (an integer is accepted): text must not be taken for its number and
+    stored as text. A filter's parameter is checked whether or not that filter is selected: accepted, a bad one
+    would refuse the later, unrelated selection of its filter."""
+    node = reliable_node(context)
+    try:
+        for name, value, reason in (
+                ('tau_acc_s', '2', "tau_acc_s must be a number, not text: got '2'"),
+                ('kp', '3', 'kp must be a number or 3 numbers, not text'),
+                ('ckf_q', ['1', '2', '3', '4', '5', '6'], 'ckf_q must be 6 numbers, not text'),
+                ('ckf_q', [1.0], 'ckf_q must be 6 numbers, got'),  # (filter=ccf: the ckf's not built)
+                ('ekf_r', [1.0, 2.0, 3.0, 4.0], 'ekf_r must be 3 numbers, got'),
+                ('mount_rotation', [0.0, 1.0], 'mount_rotation must be [roll, pitch, yaw]')):
+            before = node.get_parameter(name).get_parameter_value()
+            r = node.set_parameters([Parameter(name, value=value)])[0]
+            assert not r.successful and reason in r.reason, (name, value, r.reason)
+            assert node.get_parameter(name).get_parameter_value() == before
+        assert node.set_parameters([Parameter('tau_acc_s', value=2)])[0].successful  # (an integer: YAML's 2)
+        assert node.get_parameter('tau_acc_s').value == 2 and node.engine.filter.params.tau_acc_s == 2.0
+        assert node.set_parameters([Parameter('filter', value='ckf')])[0].successful
+    finally:
+        node.destroy_node()
+    with pytest.raises(ValueError, match='tau_acc_s must be a number, not text'):
+        reliable_node(context, tau_acc_s='2')
+
+
 def test_reset_service_and_diagnostics(context, inputs):
     node = reliable_node(context)
     h = Harness(context, node)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import array
 import math
+import re
 from pathlib import Path
 
 import pytest
@@ -133,6 +134,21 @@ def test_a_value_out_of_range_is_refused_by_the_node_path_and_by_replay_alike():
             build({'filter': 'ekf', name: bad} if name.startswith('ekf') else {name: bad}, strict=False)
         n += 1
     assert n > 45
+
+
+def test_a_list_of_the_wrong_length_is_refused_whichever_filter_is_selected():
+    """coerce (the node's on-set callback) and build (replay's and fleet's parameters files) check a list's length
+    themselves: a list for a filter not selected is never built, and a wrong one was taken."""
+    n = 0
+    for name, p in schema().items():
+        if isinstance(p.default, tuple):
+            bad = [1.0] * (max(p.lengths) + 1)
+            with pytest.raises(ParameterError, match=f'{name} must be {re.escape(p.what)}, got'):
+                coerce(name, bad)
+            with pytest.raises(ParameterError, match=name):
+                build({name: bad}, strict=False)  # (filter=ccf)
+            n += 1
+    assert n == 8
 
 
 def test_above_means_the_lower_bound_itself_is_refused():

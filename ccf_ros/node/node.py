@@ -69,7 +69,7 @@ from ..frames import apply
 from ..messages.cdr import LINEAR_ACCELERATION, LITTLE_ENDIAN_CDR
 from ..messages.convert import stamp_s
 from ..messages.paths import FastCdrPath, MessagePath, Path
-from ..settings import build, coerce, schema
+from ..settings import build, schema
 from .compat import (
     MEANINGLESS_GAINS,
     PROFILES,
@@ -83,6 +83,7 @@ from .compat import (
 )
 from .debug import raw_rpy
 from .diagnostics import Diagnostics, diagnostics
+from .parameters import coerce_parameter
 from .stats import PENDING_MAX, InputStats
 from .sync import HOLD_S, ImuMagSync
 
@@ -164,7 +165,7 @@ Held = tuple[float, Path[Any], Any, int, Vec3, Vec3]
 
 def _descriptor(name: str, read_only: bool) -> ParameterDescriptor:
     """The declaration of ``name`` from its definition (:func:`ccf_ros.settings.schema`): description, range,
-    choices; values are checked by :func:`ccf_ros.settings.coerce` in the on-set callback."""
+    choices; values are checked by :func:`.parameters.coerce_parameter` in the on-set callback."""
     p = schema()[name]
     d = ParameterDescriptor(description=p.description, read_only=read_only)
     if p.per_axis:
@@ -247,7 +248,7 @@ class CcfNode(Node):
             value = list(default) if isinstance(default, tuple) else default
             self.declare_parameter(name, value, _descriptor(name, name in read_only))
         # Invalid start-up values: say which and stop, rather than run with something else.
-        self._settings = {name: coerce(name, self.get_parameter(name).value) for name in self._defaults}
+        self._settings = {name: coerce_parameter(name, self.get_parameter(name).value) for name in self._defaults}
         filt, adapter = build(self._effective(self._settings), strict=False)
         self.engine = ImuEngine(filt, adapter)
         #: whether to ask the engine per sample if it wants the sensor frame (narrowed by _cache_settings)
@@ -529,7 +530,7 @@ class CcfNode(Node):
         try:
             for p in params:
                 if p.name in self._defaults:
-                    merged[p.name] = coerce(p.name, p.value)
+                    merged[p.name] = coerce_parameter(p.name, p.value)
             build(self._effective(merged), strict=False)
         except ValueError as err:
             return SetParametersResult(successful=False, reason=str(err))
@@ -542,7 +543,7 @@ class CcfNode(Node):
         old = dict(self._settings)
         for p in params:
             if p.name in self._defaults:
-                self._settings[p.name] = coerce(p.name, p.value)
+                self._settings[p.name] = coerce_parameter(p.name, p.value)
         filt, adapter = build(self._effective(self._settings), strict=False)
         if type(filt) is type(self.engine.filter):
             # Same filter: new gains apply from the next sample, the orientation is kept.

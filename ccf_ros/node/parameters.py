@@ -1,11 +1,13 @@
 """The node's parameter values as plain code (no ROS import): ranges and the check of a value as the node receives
-it (an integer for a real parameter included). The definitions are :mod:`ccf_ros.settings` (one schema)."""
+it (an integer for a real parameter included, text only for a text parameter). The definitions are
+:mod:`ccf_ros.settings` (one schema)."""
 
 from __future__ import annotations
 
 from typing import Any
 
-from ..settings import coerce, schema
+from ..errors import ParameterError
+from ..settings import Parameter, coerce, schema
 
 # The parameters' definitions, ranges and validation are in ccf_ros.settings (one schema); these names stay for
 # existing imports.
@@ -21,10 +23,31 @@ def parameter_range(name: str) -> tuple[float, float]:
 
 
 def coerce_parameter(name: str, value: Any, default: Any = None) -> Any:
-    """``value`` of the parameter ``name`` as the settings take it: :func:`ccf_ros.settings.coerce` (``default``,
-    the executable's, is not needed: the definition has the type).
+    """``value`` of the parameter ``name``, as the node receives it, as the settings take it:
+    :func:`ccf_ros.settings.coerce`, and text refused for a setting that is not text (``default``, the executable's,
+    is not needed: the definition has the type).
+
+    coerce converts text because ``--param`` gives replay text; a ROS parameter has a type, and a string taken for a
+    number (``ros2 param set`` of ``"'2'"`` on a dynamically typed parameter) would be stored as the string.
 
     Raises:
         ParameterError: not of the parameter's type, or out of range; the message names the parameter.
     """
+    p = schema().get(name)
+    if p is not None and not isinstance(p.default, str) and _has_text(value):
+        raise ParameterError(f'{name} must be {_kind(p)}, not text: got {value!r}')
     return coerce(name, value)
+
+
+def _has_text(value: Any) -> bool:
+    """A string, or a list holding one (rclpy's string array)."""
+    return isinstance(value, str) or (isinstance(value, (list, tuple)) and any(isinstance(v, str) for v in value))
+
+
+def _kind(p: Parameter) -> str:
+    """What a value of ``p`` is, in an error."""
+    if isinstance(p.default, bool):
+        return 'true or false'
+    if p.per_axis:
+        return 'a number or 3 numbers'
+    return p.what if isinstance(p.default, tuple) else 'a number'
