@@ -132,6 +132,25 @@ def test_lifecycle_transitions_over_dds(context, inputs):
         h.close()
 
 
+def test_a_start_up_value_rclpy_refuses_fails_configure_until_it_is_set(context):
+    """Out of the declared range, rclpy refuses the value when configure declares the parameter: the parameter is
+    declared with its default all the same, so that it can be set (it was left undeclared, and every configure
+    failed), and configure fails until it is (not run with the default)."""
+    node = lifecycle_node(context, tau_acc_s=-1.0)
+    h = Harness(context, node)
+    try:
+        m = Manager(h)
+        assert not m.transition(Transition.TRANSITION_CONFIGURE)
+        assert not m.transition(Transition.TRANSITION_CONFIGURE) and m.state() == UNCONFIGURED
+        assert not node.set_parameters([Parameter('tau_acc_s', value=-2.0)])[0].successful  # (rclpy's range)
+        assert not m.transition(Transition.TRANSITION_CONFIGURE)
+        assert node.set_parameters([Parameter('tau_acc_s', value=2.0)])[0].successful
+        assert m.transition(Transition.TRANSITION_CONFIGURE) and m.state() == INACTIVE
+        assert node.engine.filter.params.tau_acc_s == 2.0
+    finally:
+        h.close()
+
+
 @pytest.mark.parametrize('start', [UNCONFIGURED, INACTIVE, ACTIVE])
 def test_shutdown_from_every_state(context, inputs, start):
     node = lifecycle_node(context)

@@ -20,16 +20,18 @@ class CcfLifecycleNode(LifecycleNodeMixin, CcfNode):
     order (Nav2's lifecycle manager, ``ros2 lifecycle set``).
 
     configure: parameters declared (once) and validated, the engine built (an invalid value: the transition fails
-    with the reason logged, the node stays unconfigured); activate: publishers, subscriptions, ``~/reset`` and the
-    timer made, messages flow; deactivate: held samples answered, all of them destroyed (parameters stay, the
-    estimate too); cleanup: the filter state dropped (the next configure starts a fresh estimate); shutdown, from
-    every state: whatever exists is destroyed.
+    with the reason logged, the node stays unconfigured, the value can be set; one rclpy refuses to declare is
+    declared with its default, and configure fails until it is set); activate: publishers, subscriptions,
+    ``~/reset`` and the timer made, messages flow; deactivate: held samples answered, all of them destroyed
+    (parameters stay, the estimate too); cleanup: the filter state dropped (the next configure starts a fresh
+    estimate); shutdown, from every state: whatever exists is destroyed.
     """
 
     def __init__(self, profile: NodeProfile | str = 'ccf_node', *, node_name: str | None = None,
                  **kwargs: Any) -> None:
         self._init_profile(profile)
         self._configured = False
+        self._refused = {}  # (a start-up value rclpy refuses fails configure, which can be corrected)
         Node.__init__(self, node_name or self.profile.node_name, **kwargs)
         LifecycleNodeMixin.__init__(self, enable_communication_interface=True)
 
@@ -79,5 +81,8 @@ class CcfLifecycleNode(LifecycleNodeMixin, CcfNode):
         return super()._validate_parameters(params)
 
     def _apply_parameters(self, params: list[Parameter]) -> None:
+        if self._refused:  # set since: the next configure takes it
+            for p in params:
+                self._refused.pop(p.name, None)
         if self._configured:
             super()._apply_parameters(params)

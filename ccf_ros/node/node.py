@@ -42,6 +42,7 @@ from rcl_interfaces.msg import (
 )
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
+from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
@@ -65,6 +66,7 @@ from ..core.base import ANSWERED_BELOW
 from ..core.pairing import MagPairer
 from ..core.quaternion import from_xyzw, rpy_of
 from ..engine import JUMP_BACK_RESET_S, ImuEngine, Output
+from ..errors import ParameterError
 from ..frames import apply
 from ..messages.cdr import LINEAR_ACCELERATION, LITTLE_ENDIAN_CDR
 from ..messages.convert import stamp_s
@@ -217,6 +219,9 @@ class CcfNode(Node):
         """Before the rclpy node exists: the profile, and no entities yet."""
         self.profile = PROFILES[profile] if isinstance(profile, str) else profile
         self._callbacks_added = False
+        #: start-up values rclpy refused to declare, its reason by name; None: raised at once. A lifecycle node
+        #: declares the default instead, so that the parameter can be set, and fails configure until it is.
+        self._refused: dict[str, str] | None = None
         #: publishers, subscriptions, service and timer exist (between _open_ccf and _close_ccf)
         self.is_open = False
         self.pub_rpy: Publisher | None = None
@@ -246,8 +251,23 @@ class CcfNode(Node):
                 continue
             # Tuples (noise vectors) are declared as arrays.
             value = list(default) if isinstance(default, tuple) else default
-            self.declare_parameter(name, value, _descriptor(name, name in read_only))
+            descriptor = _descriptor(name, name in read_only)
+            try:
+                self.declare_parameter(name, value, descriptor)
+            except ParameterException as err:  # rclpy refused the start-up value (its range, its type)
+                if self._refused is None:
+                    raise
+                fix = ('read-only: start the node again with another value' if name in read_only
+                       else 'set it, then configure again')
+                self._refused[name] = f'{err} ({fix})'
+                self.declare_parameter(name, value, descriptor, ignore_override=True)
+        if not self._callbacks_added:  # (after the declarations, which rclpy passes through them)
+            self._callbacks_added = True
+            self.add_on_set_parameters_callback(self._validate_parameters)
+            self.add_post_set_parameters_callback(self._apply_parameters)
         # Invalid start-up values: say which and stop, rather than run with something else.
+        if self._refused:
+            raise ParameterError('; '.join(self._refused.values()))
         self._settings = {name: coerce_parameter(name, self.get_parameter(name).value) for name in self._defaults}
         filt, adapter = build(self._effective(self._settings), strict=False)
         self.engine = ImuEngine(filt, adapter)
@@ -274,10 +294,6 @@ class CcfNode(Node):
         self._mag_clock_back = -1
         #: when each kind of throttled warning was last logged (time.monotonic(), s)
         self._last_warn: dict[str, float] = {}
-        if not self._callbacks_added:
-            self._callbacks_added = True
-            self.add_on_set_parameters_callback(self._validate_parameters)
-            self.add_post_set_parameters_callback(self._apply_parameters)
 
     def _open_ccf(self) -> None:
         """Create the publishers, subscriptions, reset service and timer: messages flow from here on."""
