@@ -307,3 +307,26 @@ def test_disarm_stops_the_task_clock_and_raises_when_the_time_was_already_up():
         while not d._fired and time.monotonic() < deadline:
             pass  # busy: the exception is delivered here (or withdrawn and raised by disarm)
         d.disarm()
+
+
+@pytest.mark.parametrize('motion', ['spin', 'vehicle'])
+def test_a_steady_turn_is_not_rest_and_raises_no_bias_flag(motion, tmp_path):
+    """A robot spinning in place at 0.4-0.8 rad/s, or a vehicle's curves, are steady (low spread within a window) but
+    turning: their rate is no gyro offset. Rest is counted only where the IMU did not turn (the true body rate below
+    1 °/s; a vehicle cruising straight at constant speed reads only its offset, as at a standstill), and the offset
+    at rest is the simulated one."""
+    from ccf_ros.core.quaternion import quat_conj, quat_mul
+    from ccf_ros.offline.simulate import generate_spin, generate_vehicle
+
+    d = generate_spin(30.0, 100.0, 0) if motion == 'spin' else generate_vehicle(120.0, 100.0, 0)
+    write_bag(d, tmp_path / motion)
+    r = process_bag(str(tmp_path / motion), motion, _opts(tmp_path / 'out'))
+    assert r['status'] == 'ok', r
+    m = r['metrics']
+    omega = 2.0 * quat_mul(quat_conj(d.q_true), np.gradient(d.q_true, 1.0 / 100.0, axis=0))[:, 1:]
+    not_turning_s = np.count_nonzero(np.linalg.norm(omega, axis=1) < math.radians(1.0)) / 100.0
+    # (before: spin 26.5 s of 30 at rest, bias 13.7 °/s, both bias flags; vehicle 110 s, bias 1.29 °/s)
+    assert 4.0 <= m['rest_s'] <= not_turning_s, (m['rest_s'], not_turning_s)
+    assert not {'gyro_bias_high', 'gyro_bias_unstable'} & set(r['flags']), r['flags']
+    true_bias = np.linalg.norm(d.bias.mean(axis=0))
+    assert m['gyro_bias_rad_s'] == pytest.approx(true_bias, abs=math.radians(0.25)), (m['gyro_bias_rad_s'], true_bias)

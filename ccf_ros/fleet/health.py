@@ -14,6 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from ..core import CcfParams
+
 __all__ = ['FLAGS', 'HealthAccumulator', 'Thresholds', 'judge']
 
 G_M_S2 = 9.80665
@@ -59,6 +61,9 @@ class Thresholds:
 #: hand-held or driving IMU moves more; a MEMS IMU's noise over 0.5 s is far less (~0.005 rad/s, ~0.05 m/s²).
 REST_GYRO_STD_RAD_S = 0.02
 REST_ACC_STD_M_S2 = 0.2
+#: ... and its mean rate, per axis, one a gyro offset can be: within the filter's bias clamp (the core's rest test
+#: asks the same of its low-passed gyro). A steady turn faster than that (a robot spinning in place) is no rest.
+REST_BIAS_MAX_RAD_S = CcfParams().bias_max_rad_s
 #: Rest windows, s; vibration windows, s (the window mean removed: a high-pass at about 1/window = 5 Hz, the band
 #: ArduPilot's VIBE and PX4 look at).
 REST_WINDOW_S = 0.5
@@ -219,11 +224,12 @@ class HealthAccumulator:
         wg, wa = self._windows(gyr, REST_WINDOW_S), self._windows(acc, REST_WINDOW_S)
         if not len(wg):
             return
-        sg, sa = wg.std(axis=1), wa.std(axis=1)
-        rest = (sg.max(axis=1) < REST_GYRO_STD_RAD_S) & (sa.max(axis=1) < REST_ACC_STD_M_S2)
+        sg, sa, mg = wg.std(axis=1), wa.std(axis=1), wg.mean(axis=1)
+        rest = ((sg.max(axis=1) < REST_GYRO_STD_RAD_S) & (sa.max(axis=1) < REST_ACC_STD_M_S2)
+                & (np.abs(mg).max(axis=1) < REST_BIAS_MAX_RAD_S))
         if not rest.any():
             return
-        means = wg[rest].mean(axis=1)
+        means = mg[rest]
         self._rest_n += len(means)
         self._rest_gyr += means.sum(axis=0)
         self._rest_gyr_var += float(np.square(sg[rest]).mean(axis=1).sum())
