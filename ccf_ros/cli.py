@@ -357,7 +357,7 @@ def cmd_fleet_run(args: argparse.Namespace) -> int:
     import os
 
     from .fleet.keys import code_version
-    from .fleet.report import write_report
+    from .fleet.report import check_device_regex, write_report
     from .fleet.run import RunConfig, run_fleet
     from .fleet.task import FleetOptions
 
@@ -370,6 +370,7 @@ def cmd_fleet_run(args: argparse.Namespace) -> int:
         raise ParameterError(f'--task-timeout must be a finite number >= 0 s, got {args.task_timeout!r}')
     if not (args.wait_workers > 0 and math.isfinite(args.wait_workers)):
         raise ParameterError(f'--wait-workers must be a finite number > 0 s, got {args.wait_workers!r}')
+    check_device_regex(args.device)  # (the report is written after the run: a bad one must not cost the run)
     slow = os.environ.get('CCF_FLEET_SLOW_BAG_S', '0') or '0'
     try:
         slow_bag_s = float(slow)

@@ -464,6 +464,67 @@ def test_bad_numeric_options_are_one_clear_error(bad, tmp_path, capsys, fleet_ba
     assert not (tmp_path / 'o').exists()
 
 
+def test_a_bad_device_regex_is_one_clear_error_before_any_work(tmp_path, capsys, fleet_bags):
+    from ccf_ros.fleet.run import write_tables
+
+    assert main(['fleet', 'run', str(fleet_bags / 'robot_b'), '-o', str(tmp_path / 'o'), '--device', '(']) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and '--device' in err and "'('" in err, err
+    assert not (tmp_path / 'o').exists()  # (no bag was processed for a report that could not be written)
+    out = tmp_path / 'done'
+    out.mkdir()
+    write_tables(out, [{'bag': '/fleet/robot_a/day0', 'key': 'k', 'status': 'failed', 'error': 'x'}])
+    assert main(['fleet', 'report', str(out), '--device', '(']) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and '--device' in err and "'('" in err, err
+    assert main(['fleet', 'report', str(out), '--device', 'robot_(.)']) == 0
+    assert '(a)' in (out / 'report.md').read_text()
+
+
+def test_an_output_that_is_a_file_is_one_clear_error(tmp_path, capsys, fleet_bags):
+    afile = tmp_path / 'afile'
+    afile.write_text('mine\n')
+    assert main(['fleet', 'run', str(fleet_bags / 'robot_b'), '-o', str(afile)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(afile) in err and 'not a folder' in err, err
+    assert afile.read_text() == 'mine\n'
+    assert main(['fleet', 'run', str(fleet_bags / 'robot_b'), '-o', str(afile / 'sub')]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(afile / 'sub') in err, err
+
+
+@pytest.mark.parametrize(('address', 'why'), [('foo', 'no port'), ('tcp://127.0.0.1', 'no port'),
+                                              ('127.0.0.1:99999', "the port '99999'"), ('foo://x:1', "scheme 'foo'")])
+def test_a_malformed_scheduler_address_is_one_line_and_exit_2_at_once(address, why, tmp_path, fleet_bags):
+    """Dask's own forms are tcp://HOST:PORT and a bare HOST:PORT (its default scheme); anything else is refused in one
+    line, without a Dask client left half started (which blocked 12 s when collected, then printed a traceback)."""
+    out = tmp_path / 'out'
+    for args, env in (([str(fleet_bags / 'robot_b'), '-o', str(out), '--scheduler', address], None),
+                      ([str(fleet_bags / 'robot_b'), '-o', str(out)], {'DASK_SCHEDULER_ADDRESS': address})):
+        t0 = time.monotonic()
+        r = _run(args, env=env, timeout=60)
+        wall = time.monotonic() - t0
+        assert r.returncode == 2, r.stdout + r.stderr
+        lines = r.stderr.strip().splitlines()
+        assert len(lines) == 1 and f'not a Dask scheduler address: {address!r}' in lines[0] and why in lines[0], lines
+        assert wall < 10.0, wall
+        if '://' not in address or address.startswith('tcp://'):
+            assert not out.exists()  # (refused before discovery)
+
+
+def test_scheduler_addresses_read_as_dask_reads_them():
+    from ccf_ros.fleet.run import _tcp_host_port
+
+    assert _tcp_host_port('tcp://10.0.0.5:8786') == ('10.0.0.5', 8786)
+    assert _tcp_host_port('sched.example:8786') == ('sched.example', 8786)  # (no scheme: Dask's default, tcp)
+    assert _tcp_host_port('tcp://[::1]:8786') == ('::1', 8786)
+    assert _tcp_host_port('[::1]:8786') == ('::1', 8786)
+    assert _tcp_host_port('tls://sched:8786') is None  # (other schemes: Dask checks them)
+    for bad in ('sched', '::1:8786', 'tcp://:8786', 'sched:port', '[::1]'):
+        with pytest.raises(CcfError, match='not a Dask scheduler address'):
+            _tcp_host_port(bad)
+
+
 def test_a_cancelled_future_that_raises_is_a_failed_record_too():
     """Dask versions differ: Future.exception() of a cancelled task returns None in some and raises CancelledError in
     others; either way the bag is failed with the reason."""

@@ -10,9 +10,9 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
-from ..errors import CcfError
+from ..errors import CcfError, ParameterError
 
-__all__ = ['device_of', 'write_report']
+__all__ = ['check_device_regex', 'device_of', 'write_report']
 
 #: Metrics plotted over the bags' start times (name, label).
 TRENDS = (
@@ -22,6 +22,15 @@ TRENDS = (
     (('dropped_samples',), 'dropped samples', 1.0),
 )
 _RANK = {'failed': 0, 'fail': 1, 'warn': 2, 'ok': 3}
+
+
+def check_device_regex(regex: str | None) -> None:
+    """:class:`ParameterError` naming ``--device`` when ``regex`` is not a regular expression."""
+    if regex:
+        try:
+            re.compile(regex)
+        except re.error as err:
+            raise ParameterError(f'--device is not a regular expression ({err}): {regex!r}') from err
 
 
 def device_of(bag: str, regex: str | None) -> str:
@@ -84,6 +93,7 @@ def _plot(out: Path, device: str, recs: list[dict[str, Any]], index: int) -> str
 
 def write_report(out: str | Path, device_regex: str | None = None) -> Path:
     """Write ``OUT/report.md`` (+ one PNG per device) from ``OUT/results.jsonl``; returns the report's path."""
+    check_device_regex(device_regex)
     out = Path(out)
     recs = _read(out)
     by_device: dict[str, list[dict[str, Any]]] = defaultdict(list)

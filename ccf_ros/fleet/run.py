@@ -80,18 +80,46 @@ def _need_dask() -> None:
         raise CcfError("ccf fleet needs Dask: pip install 'ccf_ros[fleet]' (or: pip install 'dask[distributed]')")
 
 
+def _bad_address(scheduler: str, why: str) -> CcfError:
+    """The one-line error for a scheduler address that is not one (from --scheduler or DASK_SCHEDULER_ADDRESS)."""
+    return CcfError(f'not a Dask scheduler address: {scheduler!r} ({why}; give tcp://HOST:PORT or HOST:PORT)')
+
+
+def _tcp_host_port(scheduler: str) -> tuple[str, int] | None:
+    """``(host, port)`` of a TCP scheduler address (``tcp://HOST:PORT``, or bare ``HOST:PORT``: Dask's default
+    scheme, as its ``parse_address`` and ``parse_host_port`` read them; IPv6 in brackets); None for other schemes.
+    :class:`CcfError` for one Dask would refuse (no port, a port that is not a number)."""
+    scheme, sep, loc = scheduler.rpartition('://')
+    if sep and scheme != 'tcp':
+        return None
+    loc = loc.rstrip('/')
+    if loc.startswith('['):
+        host, sep, tail = loc[1:].partition(']')
+        port = tail[1:] if sep and tail.startswith(':') else ''
+    else:
+        host, sep, port = loc.rpartition(':')
+        if not sep:
+            host, port = port, ''
+        elif ':' in host:
+            raise _bad_address(scheduler, 'an IPv6 host needs brackets, [::1]:PORT')
+    if not port:
+        raise _bad_address(scheduler, 'no port')
+    if not port.isdigit() or not 0 < int(port) < 65536:
+        raise _bad_address(scheduler, f'the port {port!r} is not a number in 1-65535')
+    if not host:
+        raise _bad_address(scheduler, 'no host')
+    return host, int(port)
+
+
 def _probe(scheduler: str) -> None:
-    """A plain TCP connect to a ``tcp://HOST:PORT`` scheduler first: a refused or unroutable address fails at once,
-    before Dask is imported (Dask's client retries a refused connection until its timeout, and importing it takes
-    seconds on a loaded machine: together they can pass the 10 s the command promises). Other schemes go to Dask."""
-    scheme, sep, rest = scheduler.partition('://')
-    if not sep:
-        scheme, rest = 'tcp', scheduler
-    host, _, port = rest.rstrip('/').rpartition(':')
-    if scheme != 'tcp' or not host or not port.isdigit():
+    """A plain TCP connect to a TCP scheduler first: a refused or unroutable address fails at once, before Dask is
+    imported (Dask's client retries a refused connection until its timeout, and importing it takes seconds on a
+    loaded machine: together they can pass the 10 s the command promises). Other schemes go to Dask."""
+    where = _tcp_host_port(scheduler)
+    if where is None:
         return
     try:
-        socket.create_connection((host.strip('[]'), int(port)), timeout=CONNECT_TIMEOUT_S).close()
+        socket.create_connection(where, timeout=CONNECT_TIMEOUT_S).close()
     except OSError as err:
         raise SchedulerUnreachable(f'cannot reach the Dask scheduler at {scheduler}: {type(err).__name__}: '
                                    f'{" ".join(str(err).split())[:200]}') from err
@@ -110,6 +138,14 @@ def connect(scheduler: str | None, jobs: int) -> Iterator[Any]:
 
     logging.getLogger('distributed').setLevel(logging.ERROR)
     if scheduler:
+        from distributed.comm import get_address_host
+
+        try:
+            # Dask's own check of another scheme's address: a Client that fails on one is left half started and
+            # blocks for 12 s when it is collected.
+            get_address_host(scheduler)
+        except ValueError as err:
+            raise _bad_address(scheduler, " ".join(str(err).split())[:200]) from err
         try:
             client = Client(scheduler, timeout=f'{CONNECT_TIMEOUT_S}s', set_as_default=False)
         except (OSError, TimeoutError, ValueError) as err:
@@ -320,8 +356,15 @@ def run_fleet(cfg: RunConfig) -> RunSummary:
     usage problem, an unreachable scheduler or workers of another version."""
     t0 = time.perf_counter()
     out = cfg.out.absolute()
+    if out.exists() and not out.is_dir():
+        raise CcfError(f'the output {out} exists and is not a folder (-o/--output names the results folder)')
+    if cfg.scheduler:
+        _tcp_host_port(cfg.scheduler)  # a malformed address is a usage error: before any work
     bags = discover(cfg.inputs, exclude=out)
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:  # (a parent that is a file, no permission)
+        raise CcfError(f'cannot create the output folder {out}: {err.strerror}') from err
     opts = cfg.options
     settings = settings_hash({'engine': opts.settings, 'strict': opts.strict, 'imu': opts.imu_topic,
                               'mag': opts.mag_topic, 'no_mag': opts.no_mag, 'write_bags': opts.write_bags,
