@@ -520,7 +520,7 @@ def test_scheduler_addresses_read_as_dask_reads_them():
     assert _tcp_host_port('tcp://[::1]:8786') == ('::1', 8786)
     assert _tcp_host_port('[::1]:8786') == ('::1', 8786)
     assert _tcp_host_port('tls://sched:8786') is None  # (other schemes: Dask checks them)
-    for bad in ('sched', '::1:8786', 'tcp://:8786', 'sched:port', '[::1]'):
+    for bad in ('sched', '::1:8786', 'tcp://:8786', 'sched:port', '[::1]', 'tcp://sched:8786/'):
         with pytest.raises(CcfError, match='not a Dask scheduler address'):
             _tcp_host_port(bad)
 

@@ -92,7 +92,6 @@ def _tcp_host_port(scheduler: str) -> tuple[str, int] | None:
     scheme, sep, loc = scheduler.rpartition('://')
     if sep and scheme != 'tcp':
         return None
-    loc = loc.rstrip('/')
     if loc.startswith('['):
         host, sep, tail = loc[1:].partition(']')
         port = tail[1:] if sep and tail.startswith(':') else ''
@@ -145,7 +144,7 @@ def connect(scheduler: str | None, jobs: int) -> Iterator[Any]:
             # blocks for 12 s when it is collected.
             get_address_host(scheduler)
         except ValueError as err:
-            raise _bad_address(scheduler, " ".join(str(err).split())[:200]) from err
+            raise _bad_address(scheduler, ' '.join(str(err).split())[:200]) from err
         try:
             client = Client(scheduler, timeout=f'{CONNECT_TIMEOUT_S}s', set_as_default=False)
         except (OSError, TimeoutError, ValueError) as err:
