@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..errors import BagError, ParameterError
-from .bagio import open_bag, read_messages, ros1_to_cdr
+from .bagio import open_bag, read_messages, ros1_to_cdr, typestore
 
 if TYPE_CHECKING:  # rclpy is imported when messages are published, not with this module
     from rclpy.node import Node
@@ -36,9 +36,12 @@ def load_messages(bag: str | Path, topics: Sequence[str] | None = None) -> tuple
             raise BagError(f'topics not in bag: {", ".join(sorted(missing))}')
         types = {c.topic: c.msgtype for c in conns}
         ros1 = not reader.is2
+        # The ROS 2 definitions (as replay converts): rosbags' ROS 1 -> CDR conversion drops a ROS 1 header's seq
+        # only when the target Header has none; the reader's own store holds the bag's ROS 1 definitions.
+        store = typestore()
         msgs = []
         for c, t, raw in read_messages(reader, bag, conns):
-            cdr = ros1_to_cdr(reader.typestore, raw, c.msgtype, bag) if ros1 else raw
+            cdr = ros1_to_cdr(store, raw, c.msgtype, bag) if ros1 else raw
             msgs.append((t, c.topic, bytes(cdr)))
     return types, msgs
 
