@@ -220,17 +220,26 @@ def cmd_play(args: argparse.Namespace) -> int:
     rclpy.init()
     node = None
     bar = tqdm(total=None if args.loop else len(messages), unit='msg', disable=None, mininterval=0.5)
+    n = 0  # counted here: a bar disabled off a TTY counts nothing
+
+    def progress(k: int) -> None:
+        nonlocal n
+        n += k
+        bar.update(k)
+
     try:
         node = rclpy.create_node('ccf_play')
-        n = play(node, types, messages, rate=args.rate, loop=args.loop, clock=args.clock,
-                 should_stop=lambda: not rclpy.ok(), progress=bar.update, wait_matched_s=args.wait_for_subscribers,
-                 qos_depth=args.qos_depth)
+        play(node, types, messages, rate=args.rate, loop=args.loop, clock=args.clock,
+             should_stop=lambda: not rclpy.ok(), progress=progress, wait_matched_s=args.wait_for_subscribers,
+             qos_depth=args.qos_depth)
+        # rclpy's signal handler shuts the context down on SIGINT: play then ends early, without an exception.
+        interrupted = not rclpy.ok()
     except (KeyboardInterrupt, ExternalShutdownException):
-        n = bar.n
+        interrupted = True
     except (RCLError, NotInitializedException):
         if rclpy.ok():
             raise
-        n = bar.n  # SIGINT while the node was made: rclpy's signal thread shut the context down under it
+        interrupted = True  # SIGINT while the node was made: rclpy's signal thread shut the context down under it
     finally:
         bar.close()
         stop_signal_thread()  # (before the shutdown: rclpy's signal thread would race it, see there)
@@ -238,6 +247,8 @@ def cmd_play(args: argparse.Namespace) -> int:
             node.destroy_node()
         rclpy.try_shutdown()
     print(f'published {n} messages')
+    if interrupted:
+        raise KeyboardInterrupt  # main's way out of Ctrl-C: 'interrupted', exit 130
     return 0
 
 
