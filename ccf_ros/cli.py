@@ -53,9 +53,11 @@ class HelpFormatter(argparse.RawDescriptionHelpFormatter):
 def _settings(args: argparse.Namespace) -> tuple[dict[str, Any], dict[str, Any]]:
     """Settings from the parameters files (in order, a later file overriding an earlier one) and from the command
     line (``--param``, ``--no-mag``), which overrides the files."""
+    from .node.compat import PROFILES
     from .offline.params_file import load_params_files, parse_assignments
 
-    from_files = load_params_files(getattr(args, 'params_file', None) or [])
+    node_name = getattr(args, 'node_name', None) or PROFILES[getattr(args, 'profile', None) or 'ccf_node'].node_name
+    from_files = load_params_files(getattr(args, 'params_file', None) or [], node_name)
     given: dict[str, Any] = dict(parse_assignments(getattr(args, 'param', None) or []))
     if getattr(args, 'no_mag', False):
         given['use_mag'] = False
@@ -431,6 +433,10 @@ def _add_filter_options(p: argparse.ArgumentParser) -> None:
                    'repeatable, a later file overrides an earlier one')
     p.add_argument('--param', action='append', metavar='NAME=VALUE',
                    help='set one parameter, over the parameters files (repeatable; list: ccf params)')
+    p.add_argument('--node-name', metavar='NAME',
+                   help="the node (NAME or /NAMESPACE/NAME) whose sections of the parameters files apply, as that "
+                   "node takes them: /**, NAME, /NAMESPACE/NAME and wildcards, a file of one section whatever its "
+                   "name (if not given: the --profile executable's default name, ccf_node)")
     p.add_argument('--profile', choices=('ccf_node', 'imu_filter_madgwick_node', 'complementary_filter_node'),
                    default='ccf_node', help="start from this executable's defaults (replay an imu_tools YAML as the "
                    'drop-in node of that name would run it)')

@@ -375,8 +375,8 @@ def _build(settings: Mapping[str, Any], *, strict: bool) -> tuple[OrientationFil
     engine: dict[str, Any] = {}
     sch = schema()
     for name, value in settings.items():
-        if name.startswith('qos_overrides.'):
-            continue  # rclpy's QoS override parameters: the node's business (a YAML written for it replays too)
+        if name.startswith('qos_overrides.') or name == 'use_sim_time':
+            continue  # rclpy's own parameters: the node's business (a YAML written for it replays too)
         v = coerce(name, value)
         group = sch[name].group
         if group in ('selector', 'filter'):

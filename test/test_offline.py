@@ -215,6 +215,85 @@ def test_params_files_apply_in_order_and_param_overrides_them(sim_bag, tmp_path)
     np.testing.assert_allclose(same_rotation(both_then_param, batch(2.0)), 1.0, atol=1e-12)
 
 
+#: Sections of a robot's parameters file, each setting a parameter of its own (and ``over``, which shows the order).
+ROBOT_YAML = """\
+/**:
+  ros__parameters: {a_all: 1, over: all}
+imu_filter:
+  ros__parameters: {b_name: 1, over: name}
+/imu_filter:
+  ros__parameters: {c_slash_name: 1}
+/**/imu_filter:
+  ros__parameters: {d_any_ns: 1}
+/*/imu_filter:
+  ros__parameters: {e_one_ns: 1}
+/ns/imu_filter:
+  ros__parameters: {f_ns: 1, over: ns}
+ns:
+  imu_filter:
+    ros__parameters: {g_nested_ns: 1}
+/*:
+  ros__parameters: {h_one_name: 1}
+ekf_filter_node:
+  ros__parameters: {frequency: 30.0}
+"""
+
+
+@pytest.mark.parametrize('node', ['imu_filter', '/ns/imu_filter', '/a/b/imu_filter', 'ekf_filter_node', 'ccf_node'])
+def test_a_params_file_gives_a_node_the_sections_rclpy_gives_it(ros_domain, tmp_path, node):
+    """The sections that apply to a node, and their order (a later one overrides), are rclpy's (were: every section,
+    another node's included)."""
+    rclpy = pytest.importorskip('rclpy')
+    from ccf_ros.offline.params_file import load_params_file
+
+    path = tmp_path / 'robot.yaml'
+    path.write_text(ROBOT_YAML)
+    ns, _, name = node.rpartition('/')
+    ctx = rclpy.Context()
+    rclpy.init(args=['ccf', '--ros-args', '--params-file', str(path)], context=ctx, domain_id=ros_domain)
+    try:
+        n = rclpy.create_node(name, namespace=ns or None, context=ctx,
+                              automatically_declare_parameters_from_overrides=True)
+        expected = {k: p.value for k, p in n._parameters.items()
+                    if k not in ('use_sim_time', 'start_type_description_service')}
+        n.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+    assert expected  # (every node here has a section: /** at least)
+    assert load_params_file(path, node) == expected
+
+
+def test_replay_takes_the_named_nodes_sections_of_a_params_file(sim_bag, tmp_path, capsys):
+    """--node-name picks the node's sections as the node takes them (ccf_node by default); another node's
+    parameters are not read (an ekf_filter_node's 'frequency' was refused as unknown); a file of one section applies
+    whatever its name; no section for the node is one line naming the sections."""
+    bag = copy_bag(sim_bag, tmp_path / 'sim', stop_s=5.0)
+    robot2, robot = tmp_path / 'robot2.yaml', tmp_path / 'robot.yaml'
+    robot2.write_text('imu_filter: {ros__parameters: {use_mag: false}}\n'
+                      'other_imu_filter: {ros__parameters: {use_mag: true}}\n')
+    robot.write_text('/**: {ros__parameters: {use_sim_time: true}}\nekf_filter_node: {ros__parameters: {frequency: 30.0}}\n'
+                     'ccf_node: {ros__parameters: {use_mag: false}}\n')
+    one = tmp_path / 'one.yaml'
+    one.write_text('some_name: {ros__parameters: {use_mag: false}}\n')
+
+    def replayed(*args: str) -> np.ndarray:
+        out = tmp_path / f'out{len(list(tmp_path.iterdir()))}'
+        assert ccf(['replay', str(bag), '-o', str(out), *args]) == 0
+        return read_orientations(out, '/imu/data')[1]
+
+    six_d, nine_d = replayed('--no-mag'), replayed()
+    assert not np.array_equal(six_d, nine_d)  # the magnetometer matters here
+    np.testing.assert_array_equal(replayed('--params-file', str(robot2), '--node-name', 'imu_filter'), six_d)
+    np.testing.assert_array_equal(replayed('--params-file', str(robot2), '--node-name', '/other_imu_filter'), nine_d)
+    np.testing.assert_array_equal(replayed('--params-file', str(robot)), six_d)
+    np.testing.assert_array_equal(replayed('--params-file', str(robot), '--node-name', '/ns/ccf_node'), nine_d)
+    np.testing.assert_array_equal(replayed('--params-file', str(one)), six_d)
+    capsys.readouterr()
+    assert ccf(['replay', str(bag), '-o', str(tmp_path / 'o'), '--params-file', str(robot2)]) == 2
+    err = capsys.readouterr().err
+    assert 'no section for node /ccf_node' in err and '/imu_filter, /other_imu_filter' in err, err
+
+
 def test_a_calibration_yaml_combines_with_config_yaml(tmp_path, capsys):
     """calibrate-mag's YAML after config/ccf.yaml (whose mag_bias_* and mag_soft_iron are the identity) undoes a
     distorted magnetometer; in the other order config/ccf.yaml's identity wins."""

@@ -2,18 +2,26 @@
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
 from ..errors import ParameterError
 
+#: The node whose sections are read when no name is given: ccf_node's default name.
+DEFAULT_NODE_NAME = 'ccf_node'
 
-def load_params_file(path: str | Path) -> dict[str, Any]:
-    """Flat ``name: value`` settings from ``<node or /**>: ros__parameters: {...}``.
+
+def load_params_file(path: str | Path, node_name: str | None = None) -> dict[str, Any]:
+    """Flat ``name: value`` settings of the node ``node_name`` (``name`` or ``/ns/name``) in ``<node>:
+    ros__parameters: {...}`` sections, taken as rclpy takes them: every section whose name matches the node's
+    (``/**``, ``name``, ``/ns/name``, ``ns: {name: ...}``, the wildcards ``/*`` (one name) and ``/**`` (any number)), in
+    file order, a later one overriding. A file of one section is that node's, whatever its name.
 
     Raises:
-        ParameterError: the file cannot be read, is not YAML, or has no ``ros__parameters``.
+        ParameterError: the file cannot be read, is not YAML, has no ``ros__parameters``, or (several sections) none
+            for the node.
     """
     import yaml
 
@@ -25,23 +33,51 @@ def load_params_file(path: str | Path) -> dict[str, Any]:
         raise ParameterError(f'parameters file {path} is not valid YAML: {" ".join(str(err).split())}') from err
     if not isinstance(data, dict):
         raise ParameterError(f'parameters file {path}: expected "<node>: ros__parameters: {{...}}"')
+    sections = _sections(path, data)
+    if len(sections) > 1:
+        fqn = '/' + (node_name or DEFAULT_NODE_NAME).strip('/')
+        matching = [(name, params) for name, params in sections if _matches(name, fqn)]
+        if not matching:
+            raise ParameterError(f'parameters file {path}: no section for node {fqn} (sections: '
+                                 f'{", ".join(name for name, _ in sections)}; --node-name names the node)')
+        sections = matching
     out: dict[str, Any] = {}
-    for node, body in data.items():
-        if not isinstance(body, dict) or 'ros__parameters' not in body:
-            raise ParameterError(f'parameters file {path}: entry {node!r} has no ros__parameters')
-        params = body['ros__parameters'] or {}
-        if not isinstance(params, dict):
-            raise ParameterError(f'parameters file {path}: ros__parameters of {node!r} is not a mapping')
-        out.update(_flatten(params))
+    for _, params in sections:
+        out.update(params)
     return out
 
 
-def load_params_files(paths: Iterable[str | Path]) -> dict[str, Any]:
+def load_params_files(paths: Iterable[str | Path], node_name: str | None = None) -> dict[str, Any]:
     """The settings of several parameters files, in order: a later file overrides an earlier one."""
     out: dict[str, Any] = {}
     for path in paths:
-        out.update(load_params_file(path))
+        out.update(load_params_file(path, node_name))
     return out
+
+
+def _sections(path: str | Path, data: dict[Any, Any], namespace: str = '') -> list[tuple[str, dict[str, Any]]]:
+    """``(full name, flat parameters)`` of every node section, in file order (a mapping without
+    ``ros__parameters`` is a namespace holding nodes)."""
+    out = []
+    for key, body in data.items():
+        name = f'{namespace}/{str(key).strip("/")}'
+        if isinstance(body, dict) and 'ros__parameters' in body:
+            params = body['ros__parameters'] or {}
+            if not isinstance(params, dict):
+                raise ParameterError(f'parameters file {path}: ros__parameters of {name!r} is not a mapping')
+            out.append((name, _flatten(params)))
+        elif isinstance(body, dict) and body:
+            out += _sections(path, body, name)
+        else:
+            raise ParameterError(f'parameters file {path}: entry {name!r} has no ros__parameters')
+    return out
+
+
+def _matches(section: str, fqn: str) -> bool:
+    """Whether the section ``section`` (``/ns/name``, with ``/*`` and ``/**`` wildcards) applies to the node ``fqn``."""
+    pattern = ''.join('(/[^/]+)*' if token == '**' else '/[^/]+' if token == '*' else '/' + re.escape(token)
+                      for token in section.strip('/').split('/'))
+    return re.fullmatch(pattern, fqn) is not None
 
 
 def _flatten(d: dict[str, Any], prefix: str = '') -> dict[str, Any]:
