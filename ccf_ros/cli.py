@@ -125,11 +125,17 @@ def cmd_replay(args: argparse.Namespace) -> int:
     engine = _engine(args)
     from_files, given = _settings(args)
     st = {**NODE_DEFAULTS, **from_files, **given}
+    # The option wins over the parameter (--param or a parameters file); a relative name is the node's in the root
+    # namespace.
+    hint_topic = args.motion_hint_topic if args.motion_hint_topic is not None else \
+        coerce('motion_hint_topic', st['motion_hint_topic'])
+    if hint_topic and not hint_topic.startswith('/'):
+        hint_topic = f'/{hint_topic}'
     summary = replay(
         args.bag,
         args.output,
         engine,
-        motion_hint_topic=args.motion_hint_topic,
+        motion_hint_topic=hint_topic or None,
         motion_hint=(coerce('motion_hint_linear_m_s', st['motion_hint_linear_m_s']),
                      coerce('motion_hint_angular_rad_s', st['motion_hint_angular_rad_s']),
                      coerce('motion_hint_timeout_s', st['motion_hint_timeout_s'])),
@@ -141,7 +147,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         copy_input=args.copy_input,
         overwrite=args.overwrite,
     )
-    hint_settings = {'motion_hint_linear_m_s', 'motion_hint_angular_rad_s', 'motion_hint_timeout_s'}
+    hint_settings = {'motion_hint_topic', 'motion_hint_linear_m_s', 'motion_hint_angular_rad_s', 'motion_hint_timeout_s'}
     node_only = sorted(set(_settings(args)[1]) & set(names('node')) - hint_settings)
     if node_only:
         summary.warnings.append(f'{", ".join(node_only)}: node settings, without effect on replay (it writes '
@@ -463,7 +469,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument('--mag-topic', help=MAG_TOPIC_HELP)
     r.add_argument('--motion-hint-topic', metavar='TOPIC',
                    help='nav_msgs/Odometry or geometry_msgs/TwistStamped in the bag: the gyro bias is learnt at rest '
-                        'only when it says still (motion_hint_* settings), as the node does')
+                        'only when it says still (motion_hint_* settings), as the node does (if not given: the '
+                        'motion_hint_topic parameter; a topic named either way must be in the bag)')
     r.add_argument('--no-mag', action='store_true', help='ignore the magnetometer (6-D filter)')
     _add_filter_options(r)
     r.add_argument('--copy-input', action='store_true', help='also copy every input message to the output')

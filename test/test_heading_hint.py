@@ -138,8 +138,12 @@ def test_6d_heading_kept_across_a_restart():
 
 
 @pytest.mark.parametrize('msgtype', ['nav_msgs/msg/Odometry', 'geometry_msgs/msg/TwistStamped'])
-def test_replay_reads_the_motion_hint_from_the_bag(tmp_path, msgtype):
-    """`ccf replay --motion-hint-topic /odom`: the hint messages in bag order, as the engine takes them."""
+@pytest.mark.parametrize('how', ['option', 'param', 'params_file'])
+def test_replay_reads_the_motion_hint_from_the_bag(tmp_path, capsys, msgtype, how):
+    """`ccf replay --motion-hint-topic /odom`: the hint messages in bag order, as the engine takes them. The
+    parameter motion_hint_topic (--param, a parameters file; a relative name as the node in the root namespace
+    resolves it) does the same (was: without effect, a warning called it a node setting), and names a topic that
+    must be in the bag; the option wins over it."""
     from rosbags.rosbag2 import Writer
 
     from ccf_ros.cli import main as ccf
@@ -175,7 +179,18 @@ def test_replay_reads_the_motion_hint_from_the_bag(tmp_path, msgtype):
                 linear_acceleration=Vector3(x=a[0], y=a[1], z=a[2]), linear_acceleration_covariance=np.zeros(9))
             w.write(c_imu, ns, ts.serialize_cdr(imu, 'sensor_msgs/msg/Imu'))
     out = tmp_path / 'out'
-    assert ccf(['replay', str(bag), '-o', str(out), '--no-mag', '--motion-hint-topic', '/odom']) == 0
+    params = tmp_path / 'params.yaml'
+    params.write_text('/**:\n  ros__parameters:\n    motion_hint_topic: odom\n')
+    given = {'option': ['--motion-hint-topic', '/odom'], 'param': ['--param', 'motion_hint_topic=/odom'],
+             'params_file': ['--params-file', str(params)]}[how]
+    capsys.readouterr()
+    assert ccf(['replay', str(bag), '-o', str(out), '--no-mag', *given]) == 0
+    assert 'node settings' not in capsys.readouterr().err
+    if how != 'option':  # a topic not in the bag, as with the option; the option wins
+        assert ccf(['replay', str(bag), '-o', str(tmp_path / 'o2'), '--no-mag', '--param', 'motion_hint_topic=/nope']) == 2
+        assert 'topic /nope not in bag' in capsys.readouterr().err
+        assert ccf(['replay', str(bag), '-o', str(tmp_path / 'o3'), '--no-mag', '--param', 'motion_hint_topic=/nope',
+                    '--motion-hint-topic', '/odom']) == 0
     with open_bag(out) as reader:
         conns = [c for c in reader.connections if c.topic == '/imu/gyro_bias']
         last = None
