@@ -160,9 +160,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 def cmd_eval(args: argparse.Namespace) -> int:
     from .offline.evaluate import evaluate, format_summary, load_aligned
+    from .offline.plot import check_plot_path
 
     json_path = _writable(args.json, 'JSON', args.overwrite) if args.json else None
-    plot_path = _writable(args.plot, 'plot', args.overwrite) if args.plot else None
+    plot_path = check_plot_path(_writable(args.plot, 'plot', args.overwrite)) if args.plot else None
     aligned = load_aligned(
         args.bag,
         args.reference,
@@ -278,7 +279,9 @@ def cmd_study(args: argparse.Namespace) -> int:
     from .study.run import StudyOptions, run_study
 
     out = Path(args.output)
-    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not args.overwrite:
+    if out.exists() and not out.is_dir():
+        raise CcfError(f'{out} is a file, not a folder (-o is the report\'s folder)')  # --overwrite or not
+    if out.exists() and any(out.iterdir()) and not args.overwrite:
         raise CcfError(f'{out} exists and is not empty (use --overwrite)')
     for bag in args.bags:
         if not Path(bag).exists():

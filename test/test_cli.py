@@ -234,12 +234,19 @@ def test_other_input_errors_are_one_line(sim_bag, tmp_path, capsys):
         (['eval', str(sim_bag), '--reference', '/ground_truth/pose', '--estimate-topic', '/ground_truth/pose',
           '--plot', str(tmp_path / 'afile')], 'exists; pass --overwrite'),
         (['demo', '--offline-only', '--live-rate', '-1'], '--live-rate'),
+        # A plot type matplotlib does not write, found before any work (eval had written its JSON; a traceback).
+        (['eval', str(sim_bag), '--reference', '/ground_truth/pose', '--estimate-topic', '/ground_truth/pose',
+          '--json', str(tmp_path / 'x.json'), '--plot', str(tmp_path / 'e.txt')], '.txt is not an image type'),
+        (['calibrate-mag', str(sim_bag), '-o', str(tmp_path / 'x.yaml'), '--plot', str(tmp_path / 'e.txt')],
+         '.txt is not an image type'),
+        # A file as the study's folder, refused before the study runs (raised FileExistsError at the end).
+        (['study', str(sim_bag), '-o', str(tmp_path / 'afile'), '--overwrite'], 'is a file, not a folder'),
     ]
     for argv, text in cases:
         assert main(argv) == 2, argv
         line = one_line(capsys.readouterr().err)
         assert line.startswith(f'ccf {argv[0]}: error: ') and text in line, (argv, line)
-    nothing_left(tmp_path, 'x', 's')
+    nothing_left(tmp_path, 'x', 's', 'x.json', 'x.yaml', 'e.txt')
     assert (tmp_path / 'afile').read_text() == '' and not (tmp_path / '.afile.partial').exists()
 
 

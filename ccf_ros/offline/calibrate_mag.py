@@ -30,7 +30,7 @@ from ..magcal import (
     rotation_axes,
 )
 from .bagio import read_imu_arrays, read_topic, refuse_existing, staged
-from .plot import save_figure
+from .plot import check_plot_path, save_figure
 
 
 def read_mag(bag: str | Path, topic: str = '/imu/mag') -> np.ndarray:
@@ -170,6 +170,8 @@ def cmd_calibrate_mag(args: argparse.Namespace) -> int:
     """Read, fit (3-D or planar, see ``--motion``), report, write the parameters YAML (atomically), optionally plot."""
     out = Path(args.output)
     refuse_existing(out, args.overwrite, bag=False)  # before the slow part, not after
+    if args.plot:
+        check_plot_path(args.plot)
     if args.field_norm_ut is not None and not (math.isfinite(args.field_norm_ut) and args.field_norm_ut > 0):
         raise ParameterError(f'--field-norm-ut must be a positive number of uT, got {args.field_norm_ut!r}')
     if args.field_dip_deg is not None and not (math.isfinite(args.field_dip_deg) and abs(args.field_dip_deg) < 89.9):

@@ -47,6 +47,19 @@ def plot_rpy(
     save_figure(fig, path)
 
 
+def check_plot_path(path: str | Path) -> Path:
+    """``path`` if its extension is an image type matplotlib writes (checked before any work: the type is known
+    only when the figure is saved); :class:`CcfError` otherwise."""
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    p = Path(path)
+    types = FigureCanvasBase.get_supported_filetypes()
+    if p.suffix[1:].lower() not in types:
+        raise CcfError(f'cannot write plot {p}: {p.suffix or "no extension"} is not an image type matplotlib writes '
+                       f'(choose: {", ".join(f".{t}" for t in sorted(types))})')
+    return p
+
+
 def save_figure(fig: Any, path: str | Path) -> None:
     """Lay out, write (PNG, 90 dpi) and close a matplotlib figure; :class:`CcfError` if the file cannot be written."""
     import matplotlib.pyplot as plt
