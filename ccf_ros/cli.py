@@ -28,6 +28,8 @@ DEFAULT_MAG_TOPIC = '/imu/mag'
 MAG_TOPIC_HELP = ('sensor_msgs/MagneticField input topic (if not given: the bag\'s one MagneticField topic, of '
                   f'several {DEFAULT_MAG_TOPIC}; 6-D with a warning if the bag has none; a topic given here must be in '
                   'the bag)')
+#: The study's mask topic when ``--mask-topic`` is not given (BROAD's; a bag without it is scored everywhere).
+DEFAULT_MASK_TOPIC = '/ground_truth/moving'
 IMU_TOPIC_HELP = ("sensor_msgs/Imu input topic (if not given: the bag's one Imu topic, of several /imu/data_raw)")
 
 
@@ -273,7 +275,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def cmd_study(args: argparse.Namespace) -> int:
-    from .offline.bagio import message_counts, require_topic
+    from .offline.bagio import message_counts, read_bools, require_topic
     from .study.datasets import Topics
     from .study.report import write_report
     from .study.run import StudyOptions, run_study
@@ -290,6 +292,11 @@ def cmd_study(args: argparse.Namespace) -> int:
             require_topic(bag, args.mag_topic)
         elif not message_counts(bag).get(DEFAULT_MAG_TOPIC):
             print(f'warning: {bag}: no {DEFAULT_MAG_TOPIC}: 6-D, heading relative to the start', file=sys.stderr)
+        if args.mask_topic:
+            try:
+                read_bools(bag, args.mask_topic)  # a mask named must be in every bag, a Bool topic (as in eval)
+            except BagError as err:
+                raise BagError(f'{bag}: {err}') from err
     opts = StudyOptions(
         long_run_s=args.long_run_s,
         jobs=args.jobs,
@@ -298,7 +305,8 @@ def cmd_study(args: argparse.Namespace) -> int:
         repetitions=args.repetitions,
         bode_frequencies=args.bode_frequencies,
     )
-    topics = Topics(args.imu_topic, args.mag_topic or DEFAULT_MAG_TOPIC, args.reference, args.mask_topic or None)
+    mask = DEFAULT_MASK_TOPIC if args.mask_topic is None else args.mask_topic or None
+    topics = Topics(args.imu_topic, args.mag_topic or DEFAULT_MAG_TOPIC, args.reference, mask)
     results = run_study(args.bags, opts, topics=topics, progress=not args.quiet)
     summary = write_report(results, out, 'ccf ' + shlex.join(args.argv))
     for v in summary['verdicts']:
@@ -534,7 +542,8 @@ def build_parser() -> argparse.ArgumentParser:
     st.add_argument('--imu-topic', default='/imu/data_raw', help='sensor_msgs/Imu topic')
     st.add_argument('--mag-topic', help=MAG_TOPIC_HELP)
     st.add_argument('--reference', default='/ground_truth/pose', help='reference orientation topic')
-    st.add_argument('--mask-topic', default='/ground_truth/moving', help="Bool topic: score only where true ('' = all)")
+    st.add_argument('--mask-topic', help="Bool topic: score only where true ('' = all; a topic given here must be in "
+                    f'every bag; if not given: {DEFAULT_MASK_TOPIC} where a bag has it)')
     st.add_argument('--long-run-s', type=float, default=7200.0, help='simulated long run, s (0 = skip)')
     st.add_argument('--jobs', type=int, default=0, help='worker processes (0 = one per CPU)')
     st.add_argument('--no-lscf', action='store_true', help='skip the least-squares gain fits (no scipy needed)')

@@ -241,6 +241,9 @@ def test_other_input_errors_are_one_line(sim_bag, tmp_path, capsys):
          '.txt is not an image type'),
         # A file as the study's folder, refused before the study runs (raised FileExistsError at the end).
         (['study', str(sim_bag), '-o', str(tmp_path / 'afile'), '--overwrite'], 'is a file, not a folder'),
+        # A mask topic named is checked as eval checks it (a typo was ignored: every sample scored).
+        (['study', str(sim_bag), '-o', str(tmp_path / 's'), '--mask-topic', '/nope'], 'topic /nope not in bag'),
+        (['study', str(sim_bag), '-o', str(tmp_path / 's'), '--mask-topic', '/imu/mag'], 'expected std_msgs/msg/Bool'),
     ]
     for argv, text in cases:
         assert main(argv) == 2, argv
