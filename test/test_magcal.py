@@ -317,6 +317,22 @@ def test_calibrate_mag_refuses_to_overwrite(distorted_bag, tmp_path, capsys):
     assert [p.name for p in tmp_path.iterdir()] == ['mag_calibration.yaml']
 
 
+@pytest.mark.parametrize('motion', ['auto', '3d'])
+def test_calibrate_mag_refuses_an_imu_topic_not_in_the_bag(distorted_bag, tmp_path, motion):
+    """An --imu-topic named must be an Imu topic of the bag, whatever --motion reads (a typo went on with the
+    magnetometer alone, exit 0)."""
+    path, _ = distorted_bag
+    out = tmp_path / 'cal.yaml'
+    for topic, match in (('/nope', r'topic /nope not in bag \(topics: .*/imu/data_raw'),
+                         ('/imu/mag', 'expected sensor_msgs/msg/Imu')):
+        args = cli([str(path), '-o', str(out), '--imu-topic', topic, '--motion', motion])
+        with pytest.raises(BagError, match=match):
+            args.func(args)
+        assert not out.exists()
+    args = cli([str(path), '-o', str(out), '--imu-topic', '/imu/data_raw', '--motion', motion])
+    assert args.func(args) == 0 and out.exists()
+
+
 def test_calibrate_mag_refuses_low_coverage_unless_forced(monkeypatch, tmp_path, capsys):
     monkeypatch.setattr(calibrate_mag, 'read_mag', lambda bag, topic: distort(one_axis_motion(10.0), W, seed=13))
     args = cli(['unused.bag', '-o', str(tmp_path / 'cal.yaml')])

@@ -29,7 +29,16 @@ from ..magcal import (
     fit_planar,
     rotation_axes,
 )
-from .bagio import read_imu_arrays, read_topic, refuse_existing, staged
+from .bagio import (
+    DEFAULT_IMU_TOPIC,
+    IMU_TYPE,
+    connections_for,
+    open_bag,
+    read_imu_arrays,
+    read_topic,
+    refuse_existing,
+    staged,
+)
 from .plot import check_plot_path, save_figure
 
 
@@ -101,11 +110,14 @@ def _motion_axes(args: argparse.Namespace, raw: np.ndarray) -> tuple[str, Rotati
     """The fit to run (``'3d'`` or ``'planar'``) and the rotation axes (None without a gyro), printing which was
     chosen and why."""
     axes: RotationAxes | None = None
+    imu_topic = args.imu_topic or DEFAULT_IMU_TOPIC
     try:
-        imu = read_imu_arrays(args.bag, args.imu_topic, mag_topic=None)
+        imu = read_imu_arrays(args.bag, imu_topic, mag_topic=None)
     except CcfError as err:
         if args.motion == 'planar':
-            raise CalibrationError(f'--motion planar needs the gyro ({args.imu_topic}): {err}') from err
+            raise CalibrationError(f'--motion planar needs the gyro ({imu_topic}): {err}') from err
+        if args.imu_topic is not None:
+            raise  # named by the user: a typo must not pass as a run without the gyro
         if args.motion == 'auto':
             print(f'no gyro ({err}): motion from the magnetometer alone')
     else:
@@ -170,6 +182,9 @@ def cmd_calibrate_mag(args: argparse.Namespace) -> int:
     """Read, fit (3-D or planar, see ``--motion``), report, write the parameters YAML (atomically), optionally plot."""
     out = Path(args.output)
     refuse_existing(out, args.overwrite, bag=False)  # before the slow part, not after
+    if args.imu_topic is not None:
+        with open_bag(args.bag) as reader:  # named: must be an Imu topic of the bag, whatever --motion reads
+            connections_for(reader, args.imu_topic, msgtype=IMU_TYPE)
     if args.plot:
         check_plot_path(args.plot)
     if args.field_norm_ut is not None and not (math.isfinite(args.field_norm_ut) and args.field_norm_ut > 0):
@@ -249,8 +264,10 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument('--model', choices=MODELS, default='auto',
                    help='ellipsoid: offset and soft-iron matrix; offset: offset only; auto: the soft-iron matrix '
                    f'only where it lowers the RMS scatter below {SOFT_IRON_MIN_GAIN:g} x the offset-only fit\'s')
-    p.add_argument('--imu-topic', default='/imu/data_raw',
-                   help='sensor_msgs/Imu topic: its gyro tells the motion (--motion auto), its accelerometer up')
+    p.add_argument('--imu-topic',
+                   help='sensor_msgs/Imu topic: its gyro tells the motion (--motion auto), its accelerometer up (a '
+                   f'topic given here must be in the bag; if not given: {DEFAULT_IMU_TOPIC}, the magnetometer alone '
+                   'if the bag has none)')
     p.add_argument('--motion', choices=MOTIONS, default='auto',
                    help='3d: ellipsoid fit (needs a sensor turned through all orientations); planar: ellipse fit in '
                    'the plane of a turn about one axis (a ground robot spinning in place); auto: planar where at most '
