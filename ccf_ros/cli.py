@@ -484,7 +484,9 @@ def build_parser() -> argparse.ArgumentParser:
                         'motion_hint_topic parameter; a topic named either way must be in the bag)')
     r.add_argument('--no-mag', action='store_true', help='ignore the magnetometer (6-D filter)')
     _add_filter_options(r)
-    r.add_argument('--copy-input', action='store_true', help='also copy every input message to the output')
+    r.add_argument('--copy-input', action='store_true',
+                   help="also copy every input message to the output, but the input's own /imu/data and "
+                   "/imu/gyro_bias (the replay's answers replace them; a warning names them)")
     r.add_argument('--overwrite', action='store_true', help='replace an existing output bag')
     r.add_argument('--storage', choices=STORAGES, default='mcap', help='output storage')
     r.set_defaults(func=cmd_replay)

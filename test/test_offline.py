@@ -364,6 +364,23 @@ def test_sqlite3_and_ros1_inputs_give_the_same_result(sim_bag, tmp_path):
         assert {'/imu/data_raw', '/imu/mag', '/imu/data', '/imu/gyro_bias'} <= {c.topic for c in r.connections}
 
 
+def test_copy_input_names_the_inputs_own_outputs_it_does_not_copy(sim_bag, tmp_path, capsys):
+    """An input that already holds /imu/data and /imu/gyro_bias (here a replay's): --copy-input copies everything
+    else, and a warning names the two it does not copy (were dropped silently); the output holds the replay's."""
+    from ccf_ros.offline.bagio import message_counts
+
+    first = tmp_path / 'first'
+    assert ccf(['replay', str(copy_bag(sim_bag, tmp_path / 'sim', stop_s=2.0)), '-o', str(first), '--copy-input',
+                '--param', 'tau_acc_s=8']) == 0
+    assert 'not copied' not in capsys.readouterr().err
+    out = tmp_path / 'out'
+    assert ccf(['replay', str(first), '-o', str(out), '--copy-input']) == 0
+    err = capsys.readouterr().err
+    assert 'warning: /imu/data, /imu/gyro_bias of the input not copied' in err, err
+    assert message_counts(out) == message_counts(first)
+    assert not np.array_equal(read_orientations(out, '/imu/data')[1], read_orientations(first, '/imu/data')[1])
+
+
 def test_a_ros1_input_with_a_mount_gives_the_rosbag2_inputs_answers(sim_bag, tmp_path):
     """The message path turns a ROS 1 message's covariances into the output frame (rosbags gives them as read-only
     views of the read buffer: the copy is turned; it once raised 'assignment destination is read-only')."""

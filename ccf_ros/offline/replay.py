@@ -438,6 +438,9 @@ class _Replayer:
             raise BagError(f'{bag}: no messages on {topics.imu}')
         self._store = typestore()
         self._outputs = _Outputs.add(writer, reader, self._store, topics, copy_input)
+        if copy_input and (own := sorted({c.topic for c in reader.connections} & {topics.out_imu, topics.out_bias})):
+            # One topic cannot hold both the input's messages and the replay's answers.
+            self.warnings.append(f'{", ".join(own)} of the input not copied: the output\'s are the replay\'s')
         self._fast = _fast_path(engine, bag)
         self._message = _message_path(engine, reader, self._store, bag)
 
