@@ -202,6 +202,8 @@ def test_other_input_errors_are_one_line(sim_bag, tmp_path, capsys):
     out = tmp_path / 'exists'
     out.mkdir()
     (tmp_path / 'afile').write_text('')
+    robot = tmp_path / 'robot.yaml'
+    robot.write_text('imu_filter: {ros__parameters: {use_mag: false}}\nekf_filter_node: {ros__parameters: {}}\n')
     cases = [
         (['replay', str(sim_bag), '-o', str(out)], 'exists; pass --overwrite'),
         (['replay', str(sim_bag), '-o', str(tmp_path / 'x'), '--imu-topic', '/nope'], '/nope'),
@@ -244,6 +246,9 @@ def test_other_input_errors_are_one_line(sim_bag, tmp_path, capsys):
         # A mask topic named is checked as eval checks it (a typo was ignored: every sample scored).
         (['study', str(sim_bag), '-o', str(tmp_path / 's'), '--mask-topic', '/nope'], 'topic /nope not in bag'),
         (['study', str(sim_bag), '-o', str(tmp_path / 's'), '--mask-topic', '/imu/mag'], 'expected std_msgs/msg/Bool'),
+        # fleet reads a parameters file as replay does: no section for the node named, before any bag.
+        (['fleet', 'run', str(sim_bag), '-o', str(tmp_path / 's'), '--params-file', str(robot), '--node-name', 'imu'],
+         'no section for node /imu (sections: /imu_filter, /ekf_filter_node'),
     ]
     for argv, text in cases:
         assert main(argv) == 2, argv
