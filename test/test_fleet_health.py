@@ -330,3 +330,24 @@ def test_a_steady_turn_is_not_rest_and_raises_no_bias_flag(motion, tmp_path):
     assert not {'gyro_bias_high', 'gyro_bias_unstable'} & set(r['flags']), r['flags']
     true_bias = np.linalg.norm(d.bias.mean(axis=0))
     assert m['gyro_bias_rad_s'] == pytest.approx(true_bias, abs=math.radians(0.25)), (m['gyro_bias_rad_s'], true_bias)
+
+
+@pytest.mark.parametrize('offset_deg_s', [12.0, 20.0, 30.0])
+def test_a_still_imu_with_an_offset_beyond_the_clamp_is_still_flagged(offset_deg_s):
+    """A still IMU whose gyro reads 30 °/s (18, -14, 19 °/s per axis) has no rest window (its mean is beyond the
+    bias clamp, 15 °/s per axis, as a steady turn's is), but its offset must not go unnoticed: a bag that never rests
+    and reads a steady rate beyond the clamp in most windows fails gyro_bias_high, as one within the clamp (12, 20
+    °/s) fails by its rest's mean."""
+    t, gyr, acc, mag = _stream(60 * 200, seed=3)
+    offset = math.radians(offset_deg_s) * np.array([0.6, -0.48, 0.64])
+    h = HealthAccumulator()
+    h.add_block(t, gyr + offset, acc, mag, np.zeros(len(t), bool))
+    m = h.result()
+    health, flags = judge(m)
+    assert health == 'fail' and 'gyro_bias_high' in flags, (offset_deg_s, m['rest_s'], flags)
+    if np.abs(offset).max() > math.radians(15.0):
+        assert m['rest_s'] == 0.0 and m['steady_beyond_clamp_share'] == 1.0
+        assert m['steady_beyond_clamp_rad_s'] == pytest.approx(math.radians(offset_deg_s), rel=0.01)
+    else:
+        assert m['rest_s'] > 55.0 and m['steady_beyond_clamp_share'] == 0.0
+        assert m['gyro_bias_rad_s'] == pytest.approx(math.radians(offset_deg_s), rel=0.01)
