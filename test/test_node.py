@@ -802,6 +802,7 @@ def test_ccf_play_waits_for_the_node_so_its_first_samples_arrive(context, sim_ba
             proc.kill()
         h.close()
 
+
 def test_ccf_play_plays_a_ros1_bag(context, sim_bag, tmp_path):
     """A ROS 1 bag's messages reach the node, every one, with their stamps (were refused: its Headers' seq was read
     with the bag's own ROS 1 definitions, 'bag is unreadable or truncated')."""
