@@ -225,7 +225,7 @@ def cmd_play(args: argparse.Namespace) -> int:
     from .offline.play import load_messages, play
 
     topics = [t for t in (args.topics or '').split(',') if t] or None
-    types, messages = load_messages(args.bag, topics)
+    types, messages = load_messages(args.bag, topics, warn=lambda w: print(f'warning: {w}', file=sys.stderr))
     print(f'playing {len(messages)} messages on {len(types)} topics at {args.rate:g}x' + (' (loop)' if args.loop else '')
           + (f', after up to {args.wait_for_subscribers:g} s for a subscriber on each' if args.wait_for_subscribers else ''))
     rclpy.init()
@@ -520,7 +520,7 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument('bag', help='rosbag2 directory or ROS 1 .bag')
     pl.add_argument('--rate', type=float, default=1.0, help='speed factor')
     pl.add_argument('--loop', action='store_true', help='start over at the end (the node resets on the jump back)')
-    pl.add_argument('--topics', help='comma-separated topics to play (if not given: all)')
+    pl.add_argument('--topics', help='comma-separated topics to play (if not given: all with a ROS 2 type)')
     pl.add_argument('--clock', action='store_true', help='also publish /clock from the recording times')
     pl.add_argument('--wait-for-subscribers', type=float, default=5.0, metavar='S',
                     help='first wait up to S s until each topic has a subscriber: DDS drops what is sent before, and '

@@ -805,10 +805,11 @@ def test_ccf_play_waits_for_the_node_so_its_first_samples_arrive(context, sim_ba
 
 def test_ccf_play_plays_a_ros1_bag(context, sim_bag, tmp_path):
     """A ROS 1 bag's messages reach the node, every one, with their stamps (were refused: its Headers' seq was read
-    with the bag's own ROS 1 definitions, 'bag is unreadable or truncated')."""
+    with the bag's own ROS 1 definitions, 'bag is unreadable or truncated'); its /rosout, of a type ROS 2 does not
+    have, is skipped with a warning (was: 'unreadable or truncated: KeyError')."""
     from test_offline import to_ros1
 
-    ros1 = to_ros1(copy_bag(sim_bag, tmp_path / 'sim2', stop_s=2.0), tmp_path / 'in.bag')
+    ros1 = to_ros1(copy_bag(sim_bag, tmp_path / 'sim2', stop_s=2.0), tmp_path / 'in.bag', rosout=True)
     inputs = read_inputs(ros1, 60.0)
     stamps = [msg.header.stamp for topic, msg in inputs if topic == IMU]
     n_mag = len(inputs) - len(stamps)
@@ -823,6 +824,7 @@ def test_ccf_play_plays_a_ros1_bag(context, sim_bag, tmp_path):
         h.spin_until(lambda: node.stats.n_imu >= len(stamps) and node.stats.n_mag >= n_mag, 5.0)
         out = proc.communicate(timeout=10)[0]
         assert proc.returncode == 0, out
+        assert f'warning: {ros1}: skipping topics without a ROS 2 message type: /rosout (rosgraph_msgs/msg/Log)' in out
         assert f'published {len(stamps) + n_mag} messages' in out
         assert (node.stats.n_imu, node.stats.n_mag) == (len(stamps), n_mag)
         # (the recorder here may drop some of the answers, as in the test above)
@@ -831,6 +833,17 @@ def test_ccf_play_plays_a_ros1_bag(context, sim_bag, tmp_path):
         if proc.poll() is None:
             proc.kill()
         h.close()
+
+
+def test_ccf_play_of_a_ros1_topic_without_a_ros2_type_named_in_topics_is_one_error(sim_bag, tmp_path, capsys):
+    from test_offline import to_ros1
+
+    from ccf_ros.cli import main as ccf
+
+    ros1 = to_ros1(copy_bag(sim_bag, tmp_path / 'sim2', stop_s=0.5), tmp_path / 'in.bag', rosout=True)
+    assert ccf(['play', str(ros1), '--topics', f'{IMU},/rosout']) == 2
+    err = capsys.readouterr().err
+    assert err == 'ccf play: error: --topics: no ROS 2 message type for /rosout (rosgraph_msgs/msg/Log)\n'
 
 
 _PLAY_SIGINT = r'''

@@ -322,8 +322,11 @@ def test_a_calibration_yaml_combines_with_config_yaml(tmp_path, capsys):
     np.testing.assert_array_equal(runs['reversed'], runs['raw'])
 
 
-def to_ros1(src: Path, dst: Path) -> Path:
-    """The IMU and magnetometer topics of rosbag2 ``src`` as a ROS 1 bag ``dst`` (replay's deserializing path)."""
+def to_ros1(src: Path, dst: Path, rosout: bool = False) -> Path:
+    """The IMU and magnetometer topics of rosbag2 ``src`` as a ROS 1 bag ``dst`` (replay's deserializing path).
+
+    With ``rosout``, also a ``/rosout`` message (``rosgraph_msgs/Log``, in any ``rosbag record -a``; not in ROS 2).
+    """
     from rosbags.rosbag1 import Writer as Writer1
     from rosbags.typesys import Stores, get_typestore
 
@@ -334,6 +337,12 @@ def to_ros1(src: Path, dst: Path) -> Path:
             if c.topic in ('/imu/data_raw', '/imu/mag'):
                 conns[c.id] = w.add_connection(c.topic, c.msgtype, typestore=ts1)
         Header1, Time1 = ts1.types['std_msgs/msg/Header'], ts1.types['builtin_interfaces/msg/Time']
+        if rosout:
+            log = ts1.types['rosgraph_msgs/msg/Log'](Header1(seq=0, stamp=Time1(sec=0, nanosec=0), frame_id=''),
+                                                    level=2, name='/rec', msg='started', file='', function='', line=0,
+                                                    topics=[])
+            w.write(w.add_connection('/rosout', 'rosgraph_msgs/msg/Log', typestore=ts1), reader.start_time,
+                    ts1.serialize_ros1(log, 'rosgraph_msgs/msg/Log'))
         for c, t, raw in reader.messages():
             if c.id in conns:
                 msg = reader.deserialize(raw, c.msgtype)

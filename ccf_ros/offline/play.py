@@ -28,17 +28,30 @@ def msg_class(msgtype: str) -> type[Any]:
         raise BagError(f'message type {msgtype} is not available in this ROS installation') from err
 
 
-def load_messages(bag: str | Path, topics: Sequence[str] | None = None) -> tuple[dict[str, str], list[tuple[int, str, bytes]]]:
-    """Topic types and ``(t_rec_ns, topic, cdr_bytes)`` of a bag, in recording order."""
+def load_messages(
+    bag: str | Path, topics: Sequence[str] | None = None, warn: Callable[[str], None] | None = None,
+) -> tuple[dict[str, str], list[tuple[int, str, bytes]]]:
+    """Topic types and ``(t_rec_ns, topic, cdr_bytes)`` of a bag, in recording order.
+
+    A ROS 1 topic whose type ROS 2 does not have (``/rosout``'s ``rosgraph_msgs/Log``) is skipped, named to ``warn``;
+    one named in ``topics`` is a :class:`ParameterError`.
+    """
     with open_bag(bag) as reader:
         conns = [c for c in reader.connections if not topics or c.topic in topics]
         if topics and (missing := set(topics) - {c.topic for c in conns}):
             raise BagError(f'topics not in bag: {", ".join(sorted(missing))}')
-        types = {c.topic: c.msgtype for c in conns}
         ros1 = not reader.is2
         # The ROS 2 definitions (as replay converts): rosbags' ROS 1 -> CDR conversion drops a ROS 1 header's seq
         # only when the target Header has none; the reader's own store holds the bag's ROS 1 definitions.
         store = typestore()
+        if ros1 and (foreign := [c for c in conns if c.msgtype not in store.fielddefs]):
+            named = ', '.join(sorted({f'{c.topic} ({c.msgtype})' for c in foreign}))
+            if topics:
+                raise ParameterError(f'--topics: no ROS 2 message type for {named}')
+            if warn is not None:
+                warn(f'{bag}: skipping topics without a ROS 2 message type: {named} (--topics chooses the topics)')
+            conns = [c for c in conns if c.msgtype in store.fielddefs]
+        types = {c.topic: c.msgtype for c in conns}
         msgs = []
         for c, t, raw in read_messages(reader, bag, conns):
             cdr = ros1_to_cdr(store, raw, c.msgtype, bag) if ros1 else raw
