@@ -313,6 +313,34 @@ def coerce(name: str, value: Any) -> Any:
         raise ParameterError(str(err)) from None
 
 
+def refuse_text(name: str, value: Any) -> None:
+    """Refuse text (a string, or a list holding one) for a setting that is not text, as a ROS parameter's type does.
+
+    A value that has a type (a ROS parameter, YAML) is taken as typed: only ``--param`` gives text to convert
+    (:func:`coerce` converts it). An unknown name is left to :func:`coerce`.
+
+    Raises:
+        ParameterError: text for a setting that is not text; the message names the setting and the value.
+    """
+    p = schema().get(name)
+    if p is not None and not isinstance(p.default, str) and _has_text(value):
+        raise ParameterError(f'{name} must be {_kind(p)}, not text: got {value!r}')
+
+
+def _has_text(value: Any) -> bool:
+    """A string, or a list holding one (rclpy's string array)."""
+    return isinstance(value, str) or (isinstance(value, (list, tuple)) and any(isinstance(v, str) for v in value))
+
+
+def _kind(p: Parameter) -> str:
+    """What a value of ``p`` is, in an error."""
+    if isinstance(p.default, bool):
+        return 'true or false'
+    if p.per_axis:
+        return 'a number or 3 numbers'
+    return p.what if isinstance(p.default, tuple) else 'a number'
+
+
 def _coerce(p: Parameter, value: Any) -> Any:
     name = p.name
     lo, hi = p.range or (-math.inf, math.inf)

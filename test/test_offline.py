@@ -20,6 +20,7 @@ from ccf_ros.core.base import ANSWERED_BELOW
 from ccf_ros.core.metrics import summarize
 from ccf_ros.core.registry import FILTERS
 from ccf_ros.engine import ImuEngine, Output
+from ccf_ros.errors import ParameterError
 from ccf_ros.offline.bagio import deserialize, open_bag, read_imu_arrays, read_messages, read_orientations, stamp_s
 from ccf_ros.offline.evaluate import align, evaluate, load_aligned
 from ccf_ros.settings import build
@@ -292,6 +293,30 @@ def test_replay_takes_the_named_nodes_sections_of_a_params_file(sim_bag, tmp_pat
     assert ccf(['replay', str(bag), '-o', str(tmp_path / 'o'), '--params-file', str(robot2)]) == 2
     err = capsys.readouterr().err
     assert 'no section for node /ccf_node' in err and '/imu_filter, /other_imu_filter' in err, err
+
+
+@pytest.mark.parametrize(('line', 'param'), [
+    ("tau_acc_s: '2'", 'tau_acc_s=2'), ("use_mag: 'false'", 'use_mag=false'),
+    ("mag_soft_iron: ['1', 0, 0, 0, 1, 0, 0, 0, 1]", 'mag_soft_iron=[1, 0, 0, 0, 1, 0, 0, 0, 1]'),
+])
+def test_a_params_files_text_for_a_setting_that_is_not_text_is_refused_as_the_node_refuses_it(sim_bag, tmp_path,
+                                                                                              capsys, line, param):
+    """YAML values have a type, as ROS parameters do: the node refuses text for a number, so replay does too (it
+    converted it: exit 0 where the node exits 2). --param's text is converted."""
+    import yaml
+
+    from ccf_ros.node.parameters import coerce_parameter
+
+    (name, value), = yaml.safe_load(line).items()
+    with pytest.raises(ParameterError) as node_error:
+        coerce_parameter(name, value)
+    path = tmp_path / 'p.yaml'
+    path.write_text(f'ccf_node:\n  ros__parameters:\n    {line}\n    world_frame: ned\n')
+    bag = copy_bag(sim_bag, tmp_path / 'sim', stop_s=1.0)
+    assert ccf(['replay', str(bag), '-o', str(tmp_path / 'out'), '--params-file', str(path)]) == 2
+    assert capsys.readouterr().err == f'ccf replay: error: {node_error.value}\n'
+    assert not (tmp_path / 'out').exists()
+    assert ccf(['replay', str(bag), '-o', str(tmp_path / 'out'), '--param', param]) == 0
 
 
 def test_a_calibration_yaml_combines_with_config_yaml(tmp_path, capsys):

@@ -6,8 +6,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..errors import ParameterError
-from ..settings import Parameter, coerce, schema
+from ..settings import coerce, refuse_text, schema
 
 # The parameters' definitions, ranges and validation are in ccf_ros.settings (one schema); these names stay for
 # existing imports.
@@ -28,26 +27,11 @@ def coerce_parameter(name: str, value: Any, default: Any = None) -> Any:
     is not needed: the definition has the type).
 
     coerce converts text because ``--param`` gives replay text; a ROS parameter has a type, and a string taken for a
-    number (``ros2 param set`` of ``"'2'"`` on a dynamically typed parameter) would be stored as the string.
+    number (``ros2 param set`` of ``"'2'"`` on a dynamically typed parameter) would be stored as the string
+    (:func:`ccf_ros.settings.refuse_text`, as replay's parameters files).
 
     Raises:
         ParameterError: not of the parameter's type, or out of range; the message names the parameter.
     """
-    p = schema().get(name)
-    if p is not None and not isinstance(p.default, str) and _has_text(value):
-        raise ParameterError(f'{name} must be {_kind(p)}, not text: got {value!r}')
+    refuse_text(name, value)
     return coerce(name, value)
-
-
-def _has_text(value: Any) -> bool:
-    """A string, or a list holding one (rclpy's string array)."""
-    return isinstance(value, str) or (isinstance(value, (list, tuple)) and any(isinstance(v, str) for v in value))
-
-
-def _kind(p: Parameter) -> str:
-    """What a value of ``p`` is, in an error."""
-    if isinstance(p.default, bool):
-        return 'true or false'
-    if p.per_axis:
-        return 'a number or 3 numbers'
-    return p.what if isinstance(p.default, tuple) else 'a number'

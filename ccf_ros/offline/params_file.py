@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import ParameterError
+from ..settings import refuse_text
 
 #: The node whose sections are read when no name is given: ccf_node's default name.
 DEFAULT_NODE_NAME = 'ccf_node'
@@ -20,9 +21,29 @@ def load_params_file(path: str | Path, node_name: str | None = None) -> dict[str
     file order, a later one overriding. A file of one section is that node's, whatever its name.
 
     Raises:
-        ParameterError: the file cannot be read, is not YAML, has no ``ros__parameters``, or (several sections) none
-            for the node.
+        ParameterError: the file cannot be read, is not YAML, has no ``ros__parameters``, (several sections) none
+            for the node, or text for a setting that is not text (``tau_acc_s: '2'``, refused by the node too).
     """
+    return _typed(_node_params(path, node_name))
+
+
+def load_params_files(paths: Iterable[str | Path], node_name: str | None = None) -> dict[str, Any]:
+    """The settings of several parameters files, in order: a later file overrides an earlier one."""
+    out: dict[str, Any] = {}
+    for path in paths:
+        out.update(_node_params(path, node_name))
+    return _typed(out)
+
+
+def _typed(params: dict[str, Any]) -> dict[str, Any]:
+    """``params``, text for a setting that is not text refused: YAML values have a type, as ROS parameters do."""
+    for name, value in params.items():
+        refuse_text(name, value)
+    return params
+
+
+def _node_params(path: str | Path, node_name: str | None) -> dict[str, Any]:
+    """:func:`load_params_file`'s settings, not yet checked."""
     import yaml
 
     try:
@@ -44,14 +65,6 @@ def load_params_file(path: str | Path, node_name: str | None = None) -> dict[str
     out: dict[str, Any] = {}
     for _, params in sections:
         out.update(params)
-    return out
-
-
-def load_params_files(paths: Iterable[str | Path], node_name: str | None = None) -> dict[str, Any]:
-    """The settings of several parameters files, in order: a later file overrides an earlier one."""
-    out: dict[str, Any] = {}
-    for path in paths:
-        out.update(load_params_file(path, node_name))
     return out
 
 
