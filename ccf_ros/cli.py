@@ -52,14 +52,19 @@ class HelpFormatter(argparse.RawDescriptionHelpFormatter):
         return text
 
 
+def _node_name(args: argparse.Namespace) -> str:
+    """The node replayed: ``--node-name``, or the ``--profile`` executable's default name."""
+    from .node.compat import PROFILES
+
+    return getattr(args, 'node_name', None) or PROFILES[getattr(args, 'profile', None) or 'ccf_node'].node_name
+
+
 def _settings(args: argparse.Namespace) -> tuple[dict[str, Any], dict[str, Any]]:
     """Settings from the parameters files (in order, a later file overriding an earlier one) and from the command
     line (``--param``, ``--no-mag``), which overrides the files."""
-    from .node.compat import PROFILES
     from .offline.params_file import load_params_files, parse_assignments
 
-    node_name = getattr(args, 'node_name', None) or PROFILES[getattr(args, 'profile', None) or 'ccf_node'].node_name
-    from_files = load_params_files(getattr(args, 'params_file', None) or [], node_name)
+    from_files = load_params_files(getattr(args, 'params_file', None) or [], _node_name(args))
     given: dict[str, Any] = dict(parse_assignments(getattr(args, 'param', None) or []))
     if getattr(args, 'no_mag', False):
         given['use_mag'] = False
@@ -121,18 +126,19 @@ def _need_rclpy(what: str) -> None:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
+    from .offline.params_file import resolve_topic
     from .offline.replay import replay
     from .settings import NODE_DEFAULTS, coerce, names
 
     engine = _engine(args)
     from_files, given = _settings(args)
     st = {**NODE_DEFAULTS, **from_files, **given}
-    # The option wins over the parameter (--param or a parameters file); a relative name is the node's in the root
-    # namespace.
+    # The option wins over the parameter (--param or a parameters file); a relative name is resolved as the node
+    # named by --node-name resolves it.
     hint_topic = args.motion_hint_topic if args.motion_hint_topic is not None else \
         coerce('motion_hint_topic', st['motion_hint_topic'])
-    if hint_topic and not hint_topic.startswith('/'):
-        hint_topic = f'/{hint_topic}'
+    if hint_topic:
+        hint_topic = resolve_topic(hint_topic, _node_name(args))
     summary = replay(
         args.bag,
         args.output,
@@ -453,7 +459,8 @@ def _add_filter_options(p: argparse.ArgumentParser) -> None:
     p.add_argument('--node-name', metavar='NAME',
                    help="the node (NAME or /NAMESPACE/NAME) whose sections of the parameters files apply, as that "
                    "node takes them: /**, NAME, /NAMESPACE/NAME and wildcards, a file of one section whatever its "
-                   "name (if not given: the --profile executable's default name, ccf_node)")
+                   "name; a relative motion hint topic is resolved in its namespace (if not given: the --profile "
+                   "executable's default name, ccf_node)")
     p.add_argument('--profile', choices=('ccf_node', 'imu_filter_madgwick_node', 'complementary_filter_node'),
                    default='ccf_node', help="start from this executable's defaults (replay an imu_tools YAML as the "
                    'drop-in node of that name would run it)')

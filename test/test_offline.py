@@ -264,6 +264,34 @@ def test_a_params_file_gives_a_node_the_sections_rclpy_gives_it(ros_domain, tmp_
     assert load_params_file(path, node) == expected
 
 
+@pytest.mark.parametrize('node', ['ccf_node', '/robot/ccf_node', '/a/b/imu_filter'])
+def test_a_relative_topic_is_resolved_as_rclpy_resolves_it_for_the_node(ros_domain, node):
+    rclpy = pytest.importorskip('rclpy')
+    from ccf_ros.offline.params_file import resolve_topic
+
+    ns, _, name = node.rpartition('/')
+    ctx = rclpy.Context()
+    rclpy.init(args=[], context=ctx, domain_id=ros_domain)
+    try:
+        n = rclpy.create_node(name, namespace=ns or None, context=ctx)
+        for topic in ('odom', '~/odom', '/odom', 'a/odom', '~'):
+            assert resolve_topic(topic, node) == n.resolve_topic_name(topic), topic
+        n.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
+@pytest.mark.parametrize(('topic', 'resolved'), [('odom', '/robot/odom'), ('~/odom', '/robot/ccf_node/odom'),
+                                                 ('/odom', '/odom')])
+def test_replay_resolves_a_relative_motion_hint_topic_in_the_namespace_of_node_name(sim_bag, tmp_path, capsys, topic,
+                                                                                    resolved):
+    """As the node /robot/ccf_node would subscribe (were: always in the root namespace, `~/odom` as `/~/odom`)."""
+    bag = copy_bag(sim_bag, tmp_path / 'sim', stop_s=0.5)
+    for given in (['--param', f'motion_hint_topic={topic}'], ['--motion-hint-topic', topic]):
+        assert ccf(['replay', str(bag), '-o', str(tmp_path / 'out'), '--node-name', '/robot/ccf_node', *given]) == 2
+        assert f'topic {resolved} not in bag' in capsys.readouterr().err
+
+
 def test_replay_takes_the_named_nodes_sections_of_a_params_file(sim_bag, tmp_path, capsys):
     """--node-name picks the node's sections as the node takes them (ccf_node by default); another node's
     parameters are not read (an ekf_filter_node's 'frequency' was refused as unknown); a file of one section applies

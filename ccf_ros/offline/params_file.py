@@ -56,7 +56,7 @@ def _node_params(path: str | Path, node_name: str | None) -> dict[str, Any]:
         raise ParameterError(f'parameters file {path}: expected "<node>: ros__parameters: {{...}}"')
     sections = _sections(path, data)
     if len(sections) > 1:
-        fqn = '/' + (node_name or DEFAULT_NODE_NAME).strip('/')
+        fqn = node_fqn(node_name)
         matching = [(name, params) for name, params in sections if _matches(name, fqn)]
         if not matching:
             raise ParameterError(f'parameters file {path}: no section for node {fqn} (sections: '
@@ -66,6 +66,22 @@ def _node_params(path: str | Path, node_name: str | None) -> dict[str, Any]:
     for _, params in sections:
         out.update(params)
     return out
+
+
+def node_fqn(node_name: str | None = None) -> str:
+    """``/NAMESPACE/NAME`` of the node ``node_name`` (``NAME`` or ``/NAMESPACE/NAME``; if not given: ccf_node)."""
+    return '/' + (node_name or DEFAULT_NODE_NAME).strip('/')
+
+
+def resolve_topic(topic: str, node_name: str | None = None) -> str:
+    """``topic`` as the node ``node_name`` resolves it (ROS 2 rules): an absolute name unchanged, ``~/NAME`` under the
+    node's own name, a relative ``NAME`` in the node's namespace."""
+    if topic.startswith('/'):
+        return topic
+    fqn = node_fqn(node_name)
+    if topic == '~' or topic.startswith('~/'):
+        return fqn + topic[1:]
+    return f'{fqn.rpartition("/")[0]}/{topic}'
 
 
 def _sections(path: str | Path, data: dict[Any, Any], namespace: str = '') -> list[tuple[str, dict[str, Any]]]:
