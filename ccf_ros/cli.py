@@ -125,28 +125,36 @@ def _need_rclpy(what: str) -> None:
         raise CcfError(f'{what} needs rclpy: install the ROS 2 Jazzy wheels (pip install -e .) or source ROS 2 Jazzy')
 
 
-def cmd_replay(args: argparse.Namespace) -> int:
+def motion_hint(args: argparse.Namespace) -> tuple[str | None, tuple[float, float, float]]:
+    """The motion hint's topic (None: none) and thresholds (speed m/s, turn rate rad/s, timeout s), as replay and
+    fleet read them."""
     from .offline.params_file import resolve_topic
-    from .offline.replay import replay
-    from .settings import NODE_DEFAULTS, coerce, names
+    from .settings import NODE_DEFAULTS, coerce
 
-    engine = _engine(args)
     from_files, given = _settings(args)
     st = {**NODE_DEFAULTS, **from_files, **given}
-    # The option wins over the parameter (--param or a parameters file); a relative name is resolved as the node
-    # named by --node-name resolves it.
-    hint_topic = args.motion_hint_topic if args.motion_hint_topic is not None else \
-        coerce('motion_hint_topic', st['motion_hint_topic'])
-    if hint_topic:
-        hint_topic = resolve_topic(hint_topic, _node_name(args))
+    # The option (replay's) wins over the parameter (--param or a parameters file); a relative name is resolved as
+    # the node named by --node-name resolves it.
+    option = getattr(args, 'motion_hint_topic', None)
+    topic = option if option is not None else coerce('motion_hint_topic', st['motion_hint_topic'])
+    thresholds = (coerce('motion_hint_linear_m_s', st['motion_hint_linear_m_s']),
+                  coerce('motion_hint_angular_rad_s', st['motion_hint_angular_rad_s']),
+                  coerce('motion_hint_timeout_s', st['motion_hint_timeout_s']))
+    return (resolve_topic(topic, _node_name(args)) if topic else None), thresholds
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from .offline.replay import replay
+    from .settings import names
+
+    engine = _engine(args)
+    hint_topic, hint = motion_hint(args)
     summary = replay(
         args.bag,
         args.output,
         engine,
-        motion_hint_topic=hint_topic or None,
-        motion_hint=(coerce('motion_hint_linear_m_s', st['motion_hint_linear_m_s']),
-                     coerce('motion_hint_angular_rad_s', st['motion_hint_angular_rad_s']),
-                     coerce('motion_hint_timeout_s', st['motion_hint_timeout_s'])),
+        motion_hint_topic=hint_topic,
+        motion_hint=hint,
         imu_topic=args.imu_topic,
         mag_topic=args.mag_topic,
         detect=True,
@@ -419,8 +427,10 @@ def cmd_fleet_run(args: argparse.Namespace) -> int:
         # One file per IMU: bags of many robots (or of one, processed in parallel) would overwrite each other's.
         raise ParameterError(f'bias_file is one IMU\'s state, not a fleet\'s: remove it (got {merged["bias_file"]!r})')
     out = Path(args.output).absolute()
+    hint_topic, hint = motion_hint(args)
     opts = FleetOptions(out=str(out), settings=merged, strict=strict, version=code_version(), imu_topic=args.imu_topic,
-                        mag_topic=args.mag_topic, no_mag=args.no_mag, write_bags=args.write_bags,
+                        mag_topic=args.mag_topic, no_mag=args.no_mag, motion_hint_topic=hint_topic, motion_hint=hint,
+                        write_bags=args.write_bags,
                         reference=args.reference, mask_topic=args.mask_topic, task_timeout_s=args.task_timeout,
                         # A test knob (not an option): every bag waits this long first, to kill a worker mid-bag.
                         slow_bag_s=slow_bag_s)

@@ -267,6 +267,57 @@ def test_write_bags_equal_ccf_replay_and_accuracy_equals_ccf_eval(cluster, fleet
     assert 85 < rec['accuracy']['total_rmse_deg'] < 97
 
 
+def test_fleet_reads_the_motion_hint_as_replay_does(fleet_bags, tmp_path, capsys):
+    """motion_hint_topic (here --param, relative: in --node-name's namespace) is read as replay reads it (fleet
+    ignored it): the same output bag; a bag without the topic fails with replay's error, the other bags go on."""
+    from rosbags.rosbag2 import Writer
+
+    from ccf_ros.offline.bagio import open_bag, typestore
+
+    inputs = tmp_path / 'in'
+    inputs.mkdir()
+    hinted = inputs / 'hinted'
+    ts = typestore()
+    T = ts.types
+    with open_bag(fleet_bags / 'robot_b' / 'day4') as reader, Writer(hinted, version=9) as w:
+        conns = {c.id: w.add_connection(c.topic, c.msgtype, typestore=ts) for c in reader.connections}
+        odom = w.add_connection('/robot/odom', 'geometry_msgs/msg/TwistStamped', typestore=ts)
+        n_imu = 0
+        for c, t, raw in reader.messages():
+            w.write(conns[c.id], t, raw)
+            n_imu += c.topic == '/imu/data_raw'
+            if c.topic == '/imu/data_raw' and n_imu % 10 == 0:  # "moving" throughout: no bias learnt at rest
+                stamp = reader.deserialize(raw, c.msgtype).header.stamp
+                header = T['std_msgs/msg/Header'](stamp=T['builtin_interfaces/msg/Time'](sec=stamp.sec,
+                                                                                        nanosec=stamp.nanosec),
+                                                  frame_id='base_link')
+                V = T['geometry_msgs/msg/Vector3']
+                twist = T['geometry_msgs/msg/Twist'](linear=V(x=0.0, y=0.0, z=0.0), angular=V(x=0.0, y=0.0, z=1.0))
+                msg = T['geometry_msgs/msg/TwistStamped'](header=header, twist=twist)
+                w.write(odom, t, ts.serialize_cdr(msg, 'geometry_msgs/msg/TwistStamped'))
+    plain = shutil.copytree(fleet_bags / 'robot_b' / 'day5', inputs / 'plain')
+    hint = ['--param', 'motion_hint_topic=odom', '--node-name', '/robot/ccf_node']
+    out = tmp_path / 'out'
+    r = _run([str(inputs), '-o', str(out), '-j', '1', '--write-bags', '--reference', '', *hint], timeout=180)
+    assert r.returncode == 1, r.stdout + r.stderr
+    recs = {Path(rec['bag']).name: rec for rec in _records(out)}
+
+    def messages(p: Path) -> list[tuple[str, int, bytes]]:
+        with open_bag(p) as reader:
+            return [(c.topic, t, bytes(raw)) for c, t, raw in reader.messages()]
+
+    assert recs['hinted']['status'] == 'ok', recs['hinted']
+    assert main(['replay', str(hinted), '-o', str(tmp_path / 'replayed'), *hint]) == 0
+    assert main(['replay', str(hinted), '-o', str(tmp_path / 'unhinted')]) == 0
+    assert messages(Path(recs['hinted']['output'])) == messages(tmp_path / 'replayed')
+    assert messages(tmp_path / 'replayed') != messages(tmp_path / 'unhinted')  # (the hint matters here)
+    capsys.readouterr()
+    assert main(['replay', str(plain), '-o', str(tmp_path / 'no'), *hint]) == 2
+    why = capsys.readouterr().err.removeprefix('ccf replay: error: ').strip()
+    assert '/robot/odom' in why and recs['plain']['status'] == 'failed'
+    assert recs['plain']['error'].endswith(why), recs['plain']
+
+
 def test_a_bias_file_is_refused_it_is_one_imus_state(fleet_bags, tmp_path):
     r = _run([str(fleet_bags / 'robot_b'), '-o', str(tmp_path / 'out'), '--param', f'bias_file={tmp_path / "b.json"}'],
              timeout=60)

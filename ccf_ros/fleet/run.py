@@ -367,7 +367,8 @@ def run_fleet(cfg: RunConfig) -> RunSummary:
     opts = cfg.options
     settings = settings_hash({'engine': opts.settings, 'strict': opts.strict, 'imu': opts.imu_topic,
                               'mag': opts.mag_topic, 'no_mag': opts.no_mag, 'write_bags': opts.write_bags,
-                              'reference': opts.reference, 'mask': opts.mask_topic})
+                              'reference': opts.reference, 'mask': opts.mask_topic,
+                              'hint': [opts.motion_hint_topic, *opts.motion_hint]})
     keys = [(bag, bag_key(bag, settings, opts.version)) for bag in bags]
     results = load_results(out)
     summary = RunSummary(n_bags=len(bags))

@@ -48,6 +48,8 @@ class FleetOptions:
     imu_topic: str | None = None
     mag_topic: str | None = None
     no_mag: bool = False
+    motion_hint_topic: str | None = None  # resolved; None: none
+    motion_hint: tuple[float, float, float] = (0.01, 0.01, 0.5)  # (speed m/s, turn rate rad/s, timeout s)
     write_bags: bool = False
     reference: str = '/ground_truth/pose'
     mask_topic: str = '/ground_truth/moving'
@@ -325,7 +327,9 @@ def _run(bag: str, key: str, opts: FleetOptions, deadline: _Deadline) -> dict[st
         time.sleep(opts.slow_bag_s)
     has_ref = bool(opts.reference) and _has_reference(bag, opts.reference)
     record: dict[str, Any] = {}
-    if opts.write_bags or has_ref:
+    # The motion hint is read as replay reads it (its message path, which checks the topic): through replay, into a
+    # staged bag kept only with --write-bags.
+    if opts.write_bags or has_ref or opts.motion_hint_topic:
         import shutil
 
         out_bag = output_bag_path(opts.out, bag, key)
@@ -336,7 +340,8 @@ def _run(bag: str, key: str, opts: FleetOptions, deadline: _Deadline) -> dict[st
             stage.mkdir(parents=True)
             done = stage / out_bag.name
             summary = replay(bag, done, engine, imu_topic=opts.imu_topic, mag_topic=opts.mag_topic, detect=True,
-                             no_mag=opts.no_mag, overwrite=False, progress=False, health=health)
+                             no_mag=opts.no_mag, motion_hint_topic=opts.motion_hint_topic,
+                             motion_hint=opts.motion_hint, overwrite=False, progress=False, health=health)
             warnings = summary.warnings
             if has_ref:
                 record['accuracy'] = _accuracy(done, bag, opts)
