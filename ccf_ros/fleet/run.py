@@ -15,6 +15,7 @@ import os
 import socket
 import sys
 import time
+import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -110,6 +111,25 @@ def _tcp_host_port(scheduler: str) -> tuple[str, int] | None:
     return host, int(port)
 
 
+def check_address(scheduler: str) -> None:
+    """:class:`CcfError` for a scheduler address Dask cannot use (from --scheduler or DASK_SCHEDULER_ADDRESS): TCP
+    ones checked here, other schemes by Dask (needs Dask)."""
+    if _tcp_host_port(scheduler) is not None:
+        return
+    _need_dask()
+    from distributed.comm import get_address_host
+
+    try:
+        # Dask's own check of another scheme's address: a Client that fails on one is left half started and blocks
+        # for 12 s when it is collected. A scheme Dask has dropped (ucx:// without distributed-ucxx) warns, then
+        # raises the FutureWarning: one error, without the warning's lines.
+        with warnings.catch_warnings():
+            warnings.simplefilter('error', FutureWarning)
+            get_address_host(scheduler)
+    except (ValueError, FutureWarning) as err:
+        raise _bad_address(scheduler, ' '.join(str(err).split())[:200]) from err
+
+
 def _probe(scheduler: str) -> None:
     """A plain TCP connect to a TCP scheduler first: a refused or unroutable address fails at once, before Dask is
     imported (Dask's client retries a refused connection until its timeout, and importing it takes seconds on a
@@ -126,8 +146,8 @@ def _probe(scheduler: str) -> None:
 
 @contextlib.contextmanager
 def connect(scheduler: str | None, jobs: int) -> Iterator[Any]:
-    """A Dask client: on ``scheduler`` (address) if given, else on a local cluster of ``jobs`` single-threaded
-    worker processes (0: one per core) bound to 127.0.0.1, started and stopped here."""
+    """A Dask client: on ``scheduler`` (an address :func:`check_address` passed) if given, else on a local cluster of
+    ``jobs`` single-threaded worker processes (0: one per core) bound to 127.0.0.1, started and stopped here."""
     _need_dask()
     if scheduler:
         _probe(scheduler)
@@ -137,14 +157,6 @@ def connect(scheduler: str | None, jobs: int) -> Iterator[Any]:
 
     logging.getLogger('distributed').setLevel(logging.ERROR)
     if scheduler:
-        from distributed.comm import get_address_host
-
-        try:
-            # Dask's own check of another scheme's address: a Client that fails on one is left half started and
-            # blocks for 12 s when it is collected.
-            get_address_host(scheduler)
-        except ValueError as err:
-            raise _bad_address(scheduler, ' '.join(str(err).split())[:200]) from err
         try:
             client = Client(scheduler, timeout=f'{CONNECT_TIMEOUT_S}s', set_as_default=False)
         except (OSError, TimeoutError, ValueError) as err:
@@ -358,7 +370,7 @@ def run_fleet(cfg: RunConfig) -> RunSummary:
     if out.exists() and not out.is_dir():
         raise CcfError(f'the output {out} exists and is not a folder (-o/--output names the results folder)')
     if cfg.scheduler:
-        _tcp_host_port(cfg.scheduler)  # a malformed address is a usage error: before any work
+        check_address(cfg.scheduler)  # a malformed address is a usage error: before any work
     bags = discover(cfg.inputs, exclude=out)
     try:
         out.mkdir(parents=True, exist_ok=True)
