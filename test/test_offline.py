@@ -378,7 +378,8 @@ def test_a_calibration_yaml_combines_with_config_yaml(tmp_path, capsys):
 def to_ros1(src: Path, dst: Path, rosout: bool = False) -> Path:
     """The IMU and magnetometer topics of rosbag2 ``src`` as a ROS 1 bag ``dst`` (replay's deserializing path).
 
-    With ``rosout``, also a ``/rosout`` message (``rosgraph_msgs/Log``, in any ``rosbag record -a``; not in ROS 2).
+    With ``rosout``, also a ``/rosout`` message (``rosgraph_msgs/Log``, in any ``rosbag record -a``; not in ROS 2)
+    and a ``/marker`` one (``visualization_msgs/Marker``, which ROS 2 defines with more fields).
     """
     from rosbags.rosbag1 import Writer as Writer1
     from rosbags.typesys import Stores, get_typestore
@@ -396,6 +397,16 @@ def to_ros1(src: Path, dst: Path, rosout: bool = False) -> Path:
                                                     topics=[])
             w.write(w.add_connection('/rosout', 'rosgraph_msgs/msg/Log', typestore=ts1), reader.start_time,
                     ts1.serialize_ros1(log, 'rosgraph_msgs/msg/Log'))
+            t, g = ts1.types, 'geometry_msgs/msg/'
+            marker = t['visualization_msgs/msg/Marker'](
+                Header1(seq=0, stamp=Time1(sec=0, nanosec=0), frame_id='map'), ns='', id=0, type=2, action=0,
+                pose=t[g + 'Pose'](position=t[g + 'Point'](x=0.0, y=0.0, z=0.0),
+                                   orientation=t[g + 'Quaternion'](x=0.0, y=0.0, z=0.0, w=1.0)),
+                scale=t[g + 'Vector3'](x=1.0, y=1.0, z=1.0), color=t['std_msgs/msg/ColorRGBA'](r=1.0, g=0.0, b=0.0, a=1.0),
+                lifetime=t['builtin_interfaces/msg/Duration'](sec=0, nanosec=0), frame_locked=False, points=[],
+                colors=[], text='', mesh_resource='', mesh_use_embedded_materials=False)
+            w.write(w.add_connection('/marker', 'visualization_msgs/msg/Marker', typestore=ts1), reader.start_time,
+                    ts1.serialize_ros1(marker, 'visualization_msgs/msg/Marker'))
         for c, t, raw in reader.messages():
             if c.id in conns:
                 msg = reader.deserialize(raw, c.msgtype)
@@ -405,6 +416,23 @@ def to_ros1(src: Path, dst: Path, rosout: bool = False) -> Path:
                                                                frame_id=msg.header.frame_id))
                 w.write(conns[c.id], t, ts1.serialize_ros1(msg1, c.msgtype))
     return dst
+
+
+def test_play_skips_a_ros1_topic_whose_ros2_type_is_defined_otherwise(sim_bag, tmp_path):
+    """visualization_msgs/Marker exists in ROS 2 with more fields: its ROS 1 messages do not convert. Like a type ROS 2
+    lacks (/rosout), the topic is skipped with one warning; named in --topics, it is an error (was: the whole bag
+    refused as 'unreadable or truncated: SerdeError')."""
+    from ccf_ros.offline.play import load_messages
+
+    ros1 = to_ros1(copy_bag(sim_bag, tmp_path / 'short', stop_s=0.5), tmp_path / 'in.bag', rosout=True)
+    warnings: list[str] = []
+    types, msgs = load_messages(ros1, warn=warnings.append)
+    assert types == {'/imu/data_raw': 'sensor_msgs/msg/Imu', '/imu/mag': 'sensor_msgs/msg/MagneticField'}
+    assert len(msgs) > 100 and {topic for _, topic, _ in msgs} == set(types)
+    assert warnings == [f'{ros1}: skipping topics without a ROS 2 message type: /marker '
+                        '(visualization_msgs/msg/Marker), /rosout (rosgraph_msgs/msg/Log) (--topics chooses the topics)']
+    with pytest.raises(ParameterError, match=r'^--topics: no ROS 2 message type for /marker '):
+        load_messages(ros1, ['/imu/data_raw', '/marker'])
 
 
 def test_sqlite3_and_ros1_inputs_give_the_same_result(sim_bag, tmp_path):

@@ -33,8 +33,9 @@ def load_messages(
 ) -> tuple[dict[str, str], list[tuple[int, str, bytes]]]:
     """Topic types and ``(t_rec_ns, topic, cdr_bytes)`` of a bag, in recording order.
 
-    A ROS 1 topic whose type ROS 2 does not have (``/rosout``'s ``rosgraph_msgs/Log``) is skipped, named to ``warn``;
-    one named in ``topics`` is a :class:`ParameterError`.
+    A ROS 1 topic whose type ROS 2 does not have (``/rosout``'s ``rosgraph_msgs/Log``), or defines otherwise (its first
+    message does not convert: ``visualization_msgs/Marker``), is skipped, named to ``warn``; one named in ``topics``
+    is a :class:`ParameterError`. A later message that does not convert is a :class:`BagError` (a damaged bag).
     """
     with open_bag(bag) as reader:
         conns = [c for c in reader.connections if not topics or c.topic in topics]
@@ -44,19 +45,40 @@ def load_messages(
         # The ROS 2 definitions (as replay converts): rosbags' ROS 1 -> CDR conversion drops a ROS 1 header's seq
         # only when the target Header has none; the reader's own store holds the bag's ROS 1 definitions.
         store = typestore()
-        if ros1 and (foreign := [c for c in conns if c.msgtype not in store.fielddefs]):
-            named = ', '.join(sorted({f'{c.topic} ({c.msgtype})' for c in foreign}))
-            if topics:
-                raise ParameterError(f'--topics: no ROS 2 message type for {named}')
-            if warn is not None:
-                warn(f'{bag}: skipping topics without a ROS 2 message type: {named} (--topics chooses the topics)')
-            conns = [c for c in conns if c.msgtype in store.fielddefs]
-        types = {c.topic: c.msgtype for c in conns}
+        foreign = {c.topic: c.msgtype for c in conns if ros1 and c.msgtype not in store.fielddefs}
+        if topics and foreign:
+            raise ParameterError(f'--topics: no ROS 2 message type for {_named(foreign)}')
+        conns = [c for c in conns if c.topic not in foreign]
+        converted: set[str] = set()
         msgs = []
         for c, t, raw in read_messages(reader, bag, conns):
-            cdr = ros1_to_cdr(store, raw, c.msgtype, bag) if ros1 else raw
+            if ros1:
+                if c.topic in foreign:
+                    continue
+                try:
+                    cdr = ros1_to_cdr(store, raw, c.msgtype, bag)
+                except BagError:
+                    if c.topic in converted:
+                        raise
+                    foreign[c.topic] = c.msgtype  # (its first message: the ROS 2 definition differs)
+                    continue
+                converted.add(c.topic)
+            else:
+                cdr = raw
             msgs.append((t, c.topic, bytes(cdr)))
+        if foreign:
+            if topics:
+                raise ParameterError(f'--topics: no ROS 2 message type for {_named(foreign)}')
+            if warn is not None:
+                warn(f'{bag}: skipping topics without a ROS 2 message type: {_named(foreign)} (--topics chooses the '
+                     'topics)')
+        types = {c.topic: c.msgtype for c in conns if c.topic not in foreign}
     return types, msgs
+
+
+def _named(types: dict[str, str]) -> str:
+    """``/topic (pkg/msg/Type), ...`` of topic -> type."""
+    return ', '.join(f'{topic} ({msgtype})' for topic, msgtype in sorted(types.items()))
 
 
 def _wait_for_subscribers(pubs: Iterable[Any], wait_s: float, should_stop: Callable[[], bool]) -> bool:
