@@ -52,6 +52,7 @@ def load_messages(
         converted: set[str] = set()
         msgs = []
         for c, t, raw in read_messages(reader, bag, conns):
+            cdr: bytes | memoryview = raw
             if ros1:
                 if c.topic in foreign:
                     continue
@@ -63,8 +64,6 @@ def load_messages(
                     foreign[c.topic] = c.msgtype  # (its first message: the ROS 2 definition differs)
                     continue
                 converted.add(c.topic)
-            else:
-                cdr = raw
             msgs.append((t, c.topic, bytes(cdr)))
         if foreign:
             if topics:
