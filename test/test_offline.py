@@ -347,6 +347,19 @@ def test_a_params_files_text_for_a_setting_that_is_not_text_is_refused_as_the_no
     assert ccf(['replay', str(bag), '-o', str(tmp_path / 'out'), '--param', param]) == 0
 
 
+def test_a_params_file_reads_reals_with_an_exponent_as_rcl_does(tmp_path):
+    """``2e0`` and ``15e-1`` are reals to ROS 2's parameters-file parser (the node takes them), text to YAML 1.1, which
+    PyYAML follows: read as text, they were refused as "not text" (and before that, converted). Quoted, a value stays
+    text."""
+    from ccf_ros.offline.params_file import load_params_file
+
+    path = tmp_path / 'p.yaml'
+    path.write_text("ccf_node:\n  ros__parameters:\n    tau_acc_s: 2e0\n    rest_min_s: 15e-1\n    tau_mag_s: 1.5E+1\n"
+                    "    output_frame_id: '1e5'\n")
+    assert load_params_file(path) == {'tau_acc_s': 2.0, 'rest_min_s': 1.5, 'tau_mag_s': 15.0, 'output_frame_id': '1e5'}
+    assert all(type(v) is float for k, v in load_params_file(path).items() if k != 'output_frame_id')
+
+
 def test_a_calibration_yaml_combines_with_config_yaml(tmp_path, capsys):
     """calibrate-mag's YAML after config/ccf.yaml (whose mag_bias_* and mag_soft_iron are the identity) undoes a
     distorted magnetometer; in the other order config/ccf.yaml's identity wins."""

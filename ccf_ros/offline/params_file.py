@@ -47,7 +47,7 @@ def _node_params(path: str | Path, node_name: str | None) -> dict[str, Any]:
     import yaml
 
     try:
-        data = yaml.safe_load(Path(path).read_text())
+        data = yaml.load(Path(path).read_text(), Loader=_loader())  # (a SafeLoader)
     except OSError as err:
         raise ParameterError(f'cannot read parameters file {path}: {err.strerror}') from err
     except yaml.YAMLError as err:
@@ -66,6 +66,22 @@ def _node_params(path: str | Path, node_name: str | None) -> dict[str, Any]:
     for _, params in sections:
         out.update(params)
     return out
+
+
+#: A real with an exponent and no point (``1e-4``, ``2e0``): YAML 1.1, which PyYAML follows, reads it as text; ROS 2's
+#: parameters-file parser reads it as a number.
+_EXPONENT_REAL = re.compile(r'^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$')
+
+
+def _loader() -> type:
+    """PyYAML's safe loader, reading reals as rcl does (:data:`_EXPONENT_REAL`)."""
+    import yaml
+
+    class Loader(yaml.SafeLoader):
+        pass
+
+    Loader.add_implicit_resolver('tag:yaml.org,2002:float', _EXPONENT_REAL, list('-+0123456789.'))
+    return Loader
 
 
 def node_fqn(node_name: str | None = None) -> str:
