@@ -64,10 +64,11 @@ REST_ACC_STD_M_S2 = 0.2
 #: ... and its mean rate, per axis, one a gyro offset can be: within the filter's bias clamp (the core's rest test
 #: asks the same of its low-passed gyro). A steady turn faster than that (a robot spinning in place) is no rest.
 REST_BIAS_MAX_RAD_S = CcfParams().bias_max_rad_s
-#: A bag that never rests but reads a steady rate beyond that clamp in at least this share of its windows: a gyro
-#: offset beyond it, or a turn at one rate throughout; the two look alike without a rest, and either is flagged
-#: ``gyro_bias_high`` (the filter cannot learn such an offset).
-STEADY_BEYOND_CLAMP_SHARE = 0.5
+#: A bag that never rests, but whose windows as steady as at rest read on average a rate beyond that clamp (on one
+#: axis), for this long at least, s: a gyro offset beyond it (a still IMU), or a turn in one direction at a steady
+#: rate; without a rest the two look alike, and either is flagged ``gyro_bias_high`` (the filter cannot learn such an
+#: offset). Turns back and forth average out.
+STEADY_BEYOND_CLAMP_MIN_S = 2.0
 #: Rest windows, s; vibration windows, s (the window mean removed: a high-pass at about 1/window = 5 Hz, the band
 #: ArduPilot's VIBE and PX4 look at).
 REST_WINDOW_S = 0.5
@@ -119,8 +120,7 @@ class HealthAccumulator:
         self._gyro_peak = _Peak()
         self._acc_peak = _Peak()
         self._rest_n = 0  # rest windows
-        self._windows_n = 0  # rest-length windows of usable samples
-        self._steady_fast_n = 0  # ... steady as at rest, at a mean rate beyond the bias clamp
+        self._steady_fast_n = 0  # windows steady as at rest, at a mean rate beyond the bias clamp
         self._steady_fast_gyr = np.zeros(3)  # sum of their means
         self._rest_gyr = np.zeros(3)  # sum of window means
         self._rest_gyr_var = 0.0  # sum of window variances (mean over axes)
@@ -235,7 +235,6 @@ class HealthAccumulator:
         steady = (sg.max(axis=1) < REST_GYRO_STD_RAD_S) & (sa.max(axis=1) < REST_ACC_STD_M_S2)
         within = np.abs(mg).max(axis=1) < REST_BIAS_MAX_RAD_S
         rest = steady & within
-        self._windows_n += len(wg)
         fast = steady & ~within
         if fast.any():
             self._steady_fast_n += int(np.count_nonzero(fast))
@@ -314,8 +313,8 @@ class HealthAccumulator:
             'acc_peak_m_s2': float(self._acc_peak.peak.max()),
             'acc_clip_samples': float(self._acc_peak.clipped(Thresholds.acc_range_min_m_s2)),
             'rest_s': self._rest_n * REST_WINDOW_S,
-            'steady_beyond_clamp_share': self._steady_fast_n / self._windows_n if self._windows_n else nan,
-            'steady_beyond_clamp_rad_s': (float(np.linalg.norm(self._steady_fast_gyr / self._steady_fast_n))
+            'steady_beyond_clamp_s': self._steady_fast_n * REST_WINDOW_S,
+            'steady_beyond_clamp_rad_s': (float(np.abs(self._steady_fast_gyr / self._steady_fast_n).max())
                                           if self._steady_fast_n else nan),
         }
         if self._rest_n:
@@ -406,7 +405,8 @@ def judge(metrics: dict[str, float], th: Thresholds | None = None) -> tuple[str,
         warn, fail = getattr(th, attr)
         if v > warn:
             level[flag] = 2 if v > fail else 1
-    if not metrics.get('rest_s', 0.0) and metrics.get('steady_beyond_clamp_share', 0.0) >= STEADY_BEYOND_CLAMP_SHARE:
+    if (not metrics.get('rest_s', 0.0) and metrics.get('steady_beyond_clamp_s', 0.0) >= STEADY_BEYOND_CLAMP_MIN_S
+            and metrics.get('steady_beyond_clamp_rad_s', 0.0) > REST_BIAS_MAX_RAD_S):
         # No rest to measure the offset at, and the gyro reads a steady rate the filter's clamp cannot hold.
         level['gyro_bias_high'] = 2
     if metrics.get('filter_nonfinite_resets', 0) > 0:
