@@ -358,6 +358,10 @@ def test_a_params_file_reads_reals_with_an_exponent_as_rcl_does(tmp_path):
                     "    output_frame_id: '1e5'\n")
     assert load_params_file(path) == {'tau_acc_s': 2.0, 'rest_min_s': 1.5, 'tau_mag_s': 15.0, 'output_frame_id': '1e5'}
     assert all(type(v) is float for k, v in load_params_file(path).items() if k != 'output_frame_id')
+    # rcl's strtod stops at an underscore: text to it, text here (and refused as such for a number).
+    path.write_text('ccf_node:\n  ros__parameters:\n    tau_acc_s: 1_0e-1\n')
+    with pytest.raises(ParameterError, match='tau_acc_s must be a number, not text'):
+        load_params_file(path)
 
 
 def test_a_calibration_yaml_combines_with_config_yaml(tmp_path, capsys):

@@ -50,7 +50,7 @@ def _node_params(path: str | Path, node_name: str | None) -> dict[str, Any]:
         data = yaml.load(Path(path).read_text(), Loader=_loader())  # (a SafeLoader)
     except OSError as err:
         raise ParameterError(f'cannot read parameters file {path}: {err.strerror}') from err
-    except yaml.YAMLError as err:
+    except (yaml.YAMLError, ValueError) as err:  # (ValueError: a scalar its resolver took for a number, not one)
         raise ParameterError(f'parameters file {path} is not valid YAML: {" ".join(str(err).split())}') from err
     if not isinstance(data, dict):
         raise ParameterError(f'parameters file {path}: expected "<node>: ros__parameters: {{...}}"')
@@ -70,7 +70,7 @@ def _node_params(path: str | Path, node_name: str | None) -> dict[str, Any]:
 
 #: A real with an exponent and no point (``1e-4``, ``2e0``): YAML 1.1, which PyYAML follows, reads it as text; ROS 2's
 #: parameters-file parser reads it as a number.
-_EXPONENT_REAL = re.compile(r'^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$')
+_EXPONENT_REAL = re.compile(r'^[-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)[eE][-+]?[0-9]+$')
 
 
 def _loader() -> type:
