@@ -825,8 +825,8 @@ def test_ccf_play_plays_a_ros1_bag(context, sim_bag, tmp_path):
         h.spin_until(lambda: node.stats.n_imu >= len(stamps) and node.stats.n_mag >= n_mag, 5.0)
         out = proc.communicate(timeout=10)[0]
         assert proc.returncode == 0, out
-        assert (f'warning: {ros1}: skipping topics without a ROS 2 message type: /marker (visualization_msgs/msg/Marker)'
-                ', /rosout (rosgraph_msgs/msg/Log)') in out
+        assert (f'warning: {ros1}: skipping topics not convertible to ROS 2: /marker (visualization_msgs/msg/Marker, '
+                'defined otherwise in ROS 2), /rosout (rosgraph_msgs/msg/Log, not in ROS 2)') in out
         assert f'published {len(stamps) + n_mag} messages' in out
         assert (node.stats.n_imu, node.stats.n_mag) == (len(stamps), n_mag)
         # (the recorder here may drop some of the answers, as in the test above)
@@ -845,7 +845,7 @@ def test_ccf_play_of_a_ros1_topic_without_a_ros2_type_named_in_topics_is_one_err
     ros1 = to_ros1(copy_bag(sim_bag, tmp_path / 'sim2', stop_s=0.5), tmp_path / 'in.bag', rosout=True)
     assert ccf(['play', str(ros1), '--topics', f'{IMU},/rosout']) == 2
     err = capsys.readouterr().err
-    assert err == 'ccf play: error: --topics: no ROS 2 message type for /rosout (rosgraph_msgs/msg/Log)\n'
+    assert err == 'ccf play: error: --topics: not convertible to ROS 2: /rosout (rosgraph_msgs/msg/Log, not in ROS 2)\n'
 
 
 _PLAY_SIGINT = r'''

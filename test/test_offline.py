@@ -446,10 +446,35 @@ def test_play_skips_a_ros1_topic_whose_ros2_type_is_defined_otherwise(sim_bag, t
     types, msgs = load_messages(ros1, warn=warnings.append)
     assert types == {'/imu/data_raw': 'sensor_msgs/msg/Imu', '/imu/mag': 'sensor_msgs/msg/MagneticField'}
     assert len(msgs) > 100 and {topic for _, topic, _ in msgs} == set(types)
-    assert warnings == [f'{ros1}: skipping topics without a ROS 2 message type: /marker '
-                        '(visualization_msgs/msg/Marker), /rosout (rosgraph_msgs/msg/Log) (--topics chooses the topics)']
-    with pytest.raises(ParameterError, match=r'^--topics: no ROS 2 message type for /marker '):
+    assert warnings == [f'{ros1}: skipping topics not convertible to ROS 2: /marker (visualization_msgs/msg/Marker, '
+                        'defined otherwise in ROS 2), /rosout (rosgraph_msgs/msg/Log, not in ROS 2) (--topics chooses '
+                        'the topics)']
+    with pytest.raises(ParameterError, match=r'^--topics: not convertible to ROS 2: /marker '):
         load_messages(ros1, ['/imu/data_raw', '/marker'])
+
+
+def test_play_refuses_a_ros1_bag_whose_first_message_of_a_topic_is_damaged(sim_bag, tmp_path):
+    """A first message that decodes with neither the ROS 2 nor the bag's own definition is a damaged bag, not a type
+    defined otherwise (a review: the whole topic was skipped as 'no ROS 2 message type')."""
+    from rosbags.rosbag1 import Reader as Reader1
+    from rosbags.rosbag1 import Writer as Writer1
+    from rosbags.typesys import Stores, get_typestore
+
+    from ccf_ros.errors import BagError
+    from ccf_ros.offline.play import load_messages
+
+    ros1 = to_ros1(copy_bag(sim_bag, tmp_path / 'short', stop_s=0.2), tmp_path / 'in.bag')
+    cut = tmp_path / 'cut.bag'
+    with Reader1(ros1) as reader, Writer1(cut) as w:
+        ts1 = get_typestore(Stores.ROS1_NOETIC)
+        conns = {c.id: w.add_connection(c.topic, c.msgtype, typestore=ts1) for c in reader.connections}
+        first = True
+        for c, t, raw in reader.messages():
+            if first and c.topic == '/imu/data_raw':
+                raw, first = raw[:-8], False  # its covariances cut short
+            w.write(conns[c.id], t, raw)
+    with pytest.raises(BagError, match='unreadable or truncated'):
+        load_messages(cut)
 
 
 def test_sqlite3_and_ros1_inputs_give_the_same_result(sim_bag, tmp_path):

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..errors import BagError, ParameterError
-from .bagio import open_bag, read_messages, ros1_to_cdr, typestore
+from .bagio import deserialize, open_bag, read_messages, ros1_to_cdr, typestore
 
 if TYPE_CHECKING:  # rclpy is imported when messages are published, not with this module
     from rclpy.node import Node
@@ -34,8 +34,9 @@ def load_messages(
     """Topic types and ``(t_rec_ns, topic, cdr_bytes)`` of a bag, in recording order.
 
     A ROS 1 topic whose type ROS 2 does not have (``/rosout``'s ``rosgraph_msgs/Log``), or defines otherwise (its first
-    message does not convert: ``visualization_msgs/Marker``), is skipped, named to ``warn``; one named in ``topics``
-    is a :class:`ParameterError`. A later message that does not convert is a :class:`BagError` (a damaged bag).
+    message decodes with the bag's definition but does not convert: ``visualization_msgs/Marker``), is skipped, named
+    to ``warn``; one named in ``topics`` is a :class:`ParameterError`. A message that decodes with neither is a
+    :class:`BagError` (a damaged bag), as is a later one that does not convert.
     """
     with open_bag(bag) as reader:
         conns = [c for c in reader.connections if not topics or c.topic in topics]
@@ -45,9 +46,10 @@ def load_messages(
         # The ROS 2 definitions (as replay converts): rosbags' ROS 1 -> CDR conversion drops a ROS 1 header's seq
         # only when the target Header has none; the reader's own store holds the bag's ROS 1 definitions.
         store = typestore()
-        foreign = {c.topic: c.msgtype for c in conns if ros1 and c.msgtype not in store.fielddefs}
+        # topic -> why it does not convert
+        foreign = {c.topic: f'{c.msgtype}, not in ROS 2' for c in conns if ros1 and c.msgtype not in store.fielddefs}
         if topics and foreign:
-            raise ParameterError(f'--topics: no ROS 2 message type for {_named(foreign)}')
+            raise ParameterError(f'--topics: not convertible to ROS 2: {_named(foreign)}')
         conns = [c for c in conns if c.topic not in foreign]
         converted: set[str] = set()
         msgs = []
@@ -61,23 +63,23 @@ def load_messages(
                 except BagError:
                     if c.topic in converted:
                         raise
-                    foreign[c.topic] = c.msgtype  # (its first message: the ROS 2 definition differs)
+                    deserialize(reader, raw, c.msgtype, bag)  # (a damaged message raises here)
+                    foreign[c.topic] = f'{c.msgtype}, defined otherwise in ROS 2'
                     continue
                 converted.add(c.topic)
             msgs.append((t, c.topic, bytes(cdr)))
         if foreign:
             if topics:
-                raise ParameterError(f'--topics: no ROS 2 message type for {_named(foreign)}')
+                raise ParameterError(f'--topics: not convertible to ROS 2: {_named(foreign)}')
             if warn is not None:
-                warn(f'{bag}: skipping topics without a ROS 2 message type: {_named(foreign)} (--topics chooses the '
-                     'topics)')
+                warn(f'{bag}: skipping topics not convertible to ROS 2: {_named(foreign)} (--topics chooses the topics)')
         types = {c.topic: c.msgtype for c in conns if c.topic not in foreign}
     return types, msgs
 
 
-def _named(types: dict[str, str]) -> str:
-    """``/topic (pkg/msg/Type), ...`` of topic -> type."""
-    return ', '.join(f'{topic} ({msgtype})' for topic, msgtype in sorted(types.items()))
+def _named(reasons: dict[str, str]) -> str:
+    """``/topic (why), ...`` of topic -> why."""
+    return ', '.join(f'{topic} ({why})' for topic, why in sorted(reasons.items()))
 
 
 def _wait_for_subscribers(pubs: Iterable[Any], wait_s: float, should_stop: Callable[[], bool]) -> bool:
