@@ -64,11 +64,14 @@ REST_ACC_STD_M_S2 = 0.2
 #: ... and its mean rate, per axis, one a gyro offset can be: within the filter's bias clamp (the core's rest test
 #: asks the same of its low-passed gyro). A steady turn faster than that (a robot spinning in place) is no rest.
 REST_BIAS_MAX_RAD_S = CcfParams().bias_max_rad_s
-#: A bag that never rests, but whose windows as steady as at rest read on average a rate beyond that clamp (on one
-#: axis), for this long at least, s: a gyro offset beyond it (a still IMU), or a turn in one direction at a steady
-#: rate; without a rest the two look alike, and either is flagged ``gyro_bias_high`` (the filter cannot learn such an
-#: offset). Turns back and forth average out.
-STEADY_BEYOND_CLAMP_MIN_S = 2.0
+#: Rest windows this long in all at least, s, before the offset and the accelerometer norm are read from them: a
+#: single window of gentle hand motion at a near-constant rate passes as rest (one read 15 °/s of "offset").
+REST_MIN_S = 2.0
+#: A bag without that much rest, but whose windows as steady as at rest read on average a rate beyond the clamp (on
+#: one axis) for as long: a gyro offset beyond it (a still IMU), or a turn in one direction at a steady rate; without
+#: a rest the two look alike, and either is flagged ``gyro_bias_high`` (the filter cannot learn such an offset).
+#: Turns back and forth average out.
+STEADY_BEYOND_CLAMP_MIN_S = REST_MIN_S
 #: Rest windows, s; vibration windows, s (the window mean removed: a high-pass at about 1/window = 5 Hz, the band
 #: ArduPilot's VIBE and PX4 look at).
 REST_WINDOW_S = 0.5
@@ -317,7 +320,7 @@ class HealthAccumulator:
             'steady_beyond_clamp_rad_s': (float(np.abs(self._steady_fast_gyr / self._steady_fast_n).max())
                                           if self._steady_fast_n else nan),
         }
-        if self._rest_n:
+        if self._rest_n * REST_WINDOW_S >= REST_MIN_S:
             bias = self._rest_gyr / self._rest_n
             change = (np.linalg.norm(self._rest_last - self._rest_first)
                       if self._rest_first is not None and self._rest_last is not None else nan)
@@ -405,7 +408,7 @@ def judge(metrics: dict[str, float], th: Thresholds | None = None) -> tuple[str,
         warn, fail = getattr(th, attr)
         if v > warn:
             level[flag] = 2 if v > fail else 1
-    if (not metrics.get('rest_s', 0.0) and metrics.get('steady_beyond_clamp_s', 0.0) >= STEADY_BEYOND_CLAMP_MIN_S
+    if (metrics.get('rest_s', 0.0) < REST_MIN_S and metrics.get('steady_beyond_clamp_s', 0.0) >= STEADY_BEYOND_CLAMP_MIN_S
             and metrics.get('steady_beyond_clamp_rad_s', 0.0) > REST_BIAS_MAX_RAD_S):
         # No rest to measure the offset at, and the gyro reads a steady rate the filter's clamp cannot hold.
         level['gyro_bias_high'] = 2
