@@ -186,6 +186,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
         reference_bag=args.reference_bag,
         estimate_topic=args.estimate_topic,
         mask_topic=args.mask_topic,
+        progress=True,
     )
     s = evaluate(aligned)
     print(format_summary(s, args.estimate_topic))

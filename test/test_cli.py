@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import io
 import os
 import signal
 import subprocess
@@ -299,7 +300,7 @@ def test_calibrate_mag_is_a_ccf_subcommand_and_its_errors_are_one_line(sim_bag, 
     assert main(['calibrate-mag', str(sim_bag), '--field-norm-ut', '-5', '-o', str(tmp_path / 'a.yaml')]) == 2
     assert '--field-norm-ut' in one_line(capsys.readouterr().err)
     # Data that cannot give a calibration (a sensor at rest): CalibrationError, one line.
-    monkeypatch.setattr(calibrate_mag, 'read_mag', lambda bag, topic: np.tile([20e-6, 0.0, -40e-6], (500, 1))
+    monkeypatch.setattr(calibrate_mag, 'read_mag', lambda bag, topic, progress=None: np.tile([20e-6, 0.0, -40e-6], (500, 1))
                         + 1e-7 * np.random.default_rng(0).standard_normal((500, 3)))
     assert main(['calibrate-mag', str(sim_bag), '-o', str(tmp_path / 'b.yaml')]) == 2
     line = one_line(capsys.readouterr().err)
@@ -509,3 +510,28 @@ def test_overwrite_never_deletes_a_folder_that_is_not_a_bag_nor_the_input(sim_ba
     out = tmp_path / 'out'
     assert main(['replay', str(sim_bag), '-o', str(out)]) == 0
     assert main(['replay', str(sim_bag), '-o', str(out), '--overwrite']) == 0  # a bag: replaced
+
+
+class _Terminal(io.StringIO):
+    """stderr as a terminal: progress bars are drawn on one."""
+
+    def isatty(self) -> bool:
+        return True
+
+
+def test_eval_and_calibrate_mag_show_progress_on_a_terminal_only(sim_bag, monkeypatch, capsys):
+    """Reading an hour of messages takes a while: eval draws a bar per topic it reads, calibrate-mag one for the
+    magnetometer (and the gyro), on a terminal; off one (a pipe, CI), stderr stays clean."""
+    from ccf_ros.offline.calibrate_mag import read_mag
+
+    args = ['eval', str(sim_bag), '--reference', '/ground_truth/pose', '--estimate-topic', '/ground_truth/pose']
+    assert main(args) == 0
+    assert capsys.readouterr().err == ''
+    n = 60 * 286
+    term = _Terminal()
+    monkeypatch.setattr(sys, 'stderr', term)
+    assert main(args) == 0
+    assert term.getvalue().count(f'/ground_truth/pose: 100%|##########| {n}/{n}') == 2, term.getvalue()[-400:]
+    term.truncate(0)
+    assert len(read_mag(sim_bag, progress='/imu/mag')) == n
+    assert f'/imu/mag: 100%|##########| {n}/{n}' in term.getvalue()

@@ -334,7 +334,7 @@ def test_calibrate_mag_refuses_an_imu_topic_not_in_the_bag(distorted_bag, tmp_pa
 
 
 def test_calibrate_mag_refuses_low_coverage_unless_forced(monkeypatch, tmp_path, capsys):
-    monkeypatch.setattr(calibrate_mag, 'read_mag', lambda bag, topic: distort(one_axis_motion(10.0), W, seed=13))
+    monkeypatch.setattr(calibrate_mag, 'read_mag', lambda bag, topic, progress=None: distort(one_axis_motion(10.0), W, seed=13))
     args = cli(['unused.bag', '-o', str(tmp_path / 'cal.yaml')])
     with pytest.raises(CalibrationError, match=r'rotate the sensor through more orientations.*--force'):
         args.func(args)

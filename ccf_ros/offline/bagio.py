@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import shutil
 import sqlite3
+import sys
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
@@ -73,15 +74,19 @@ def open_bag(path: str | Path) -> Iterator[AnyReader]:
 
 
 def read_messages(
-    reader: AnyReader, path: str | Path, connections: Iterable[Connection] | None = None, *, fast: bool = False
+    reader: AnyReader, path: str | Path, connections: Iterable[Connection] | None = None, *, fast: bool = False,
+    progress: str | None = None,
 ) -> Iterator[tuple[Connection, int, bytes]]:
     """``(connection, t_rec_ns, raw)`` of ``reader.messages(connections)``; a read failure is a :class:`BagError`.
 
     ``fast``: read a single-file MCAP bag with :func:`~ccf_ros.offline.mcap.fast_messages` (same messages, same
-    order, same bytes), else through rosbags.
+    order, same bytes), else through rosbags. ``progress``: a progress bar with this label on a terminal (stderr).
     Only the reading is guarded: what the caller does with a message (between two ``next``) is not.
     """
     conns = list(connections) if connections is not None else list(reader.connections)
+    if progress is not None and sys.stderr.isatty():
+        yield from _with_bar(read_messages(reader, path, conns, fast=fast), progress, sum(c.msgcount for c in conns))
+        return
     try:
         it: Iterator[Any] | None = None
         if fast:
@@ -100,6 +105,19 @@ def read_messages(
         except Exception as err:  # rosbags (mcap, sqlite3, ROS 1 readers) raises several types
             raise unreadable(path, err) from err
         yield item
+
+
+def _with_bar(items: Iterator[Any], label: str, total: int) -> Iterator[Any]:
+    """``items``, counted on a progress bar (updated per 1000: a bar's update per message costs as much as reading)."""
+    from tqdm import tqdm
+
+    with tqdm(total=total, unit='msg', desc=label, mininterval=0.5) as bar:
+        k = 0
+        for k, item in enumerate(items, 1):
+            if not k % 1000:
+                bar.update(1000)
+            yield item
+        bar.update(k % 1000)
 
 
 def deserialize(reader: AnyReader, raw: bytes | memoryview, msgtype: str, path: str | Path) -> Any:
@@ -365,8 +383,9 @@ def read_imu_arrays(
     imu_topic: str = '/imu/data_raw',
     mag_topic: str | None = '/imu/mag',
     mag_timeout_s: float = 0.5,
+    progress: str | None = None,
 ) -> ImuArrays:
-    """Read all IMU samples (and paired magnetometer samples) of a bag into arrays."""
+    """Read all IMU samples (and paired magnetometer samples) of a bag into arrays (``progress``: a bar's label)."""
     pairer = MagPairer(timeout_s=mag_timeout_s)
     t, g, a, m = [], [], [], []
     nan3 = (np.nan, np.nan, np.nan)
@@ -375,7 +394,7 @@ def read_imu_arrays(
         if mag_topic:
             mag = connections_for(reader, mag_topic, required=False, msgtype='sensor_msgs/msg/MagneticField')
             conns = in_bag_order(reader, conns + mag)
-        for conn, _, raw in read_messages(reader, path, conns):
+        for conn, _, raw in read_messages(reader, path, conns, progress=progress):
             msg = deserialize(reader, raw, conn.msgtype, path)
             if conn.topic == imu_topic:
                 ts = stamp_s(msg.header)
@@ -412,16 +431,19 @@ def orientation_of(msg: Any, msgtype: str) -> tuple[float, float, float, float]:
     return from_xyzw(o.x, o.y, o.z, o.w)
 
 
-def read_topic(path: str | Path, topic: str, msgtype: str | None = None) -> Iterator[tuple[Connection, int, Any]]:
+def read_topic(
+    path: str | Path, topic: str, msgtype: str | None = None, progress: str | None = None
+) -> Iterator[tuple[Connection, int, Any]]:
     """``(connection, t_rec_ns, message)`` of every message of ``topic`` (required; of type ``msgtype`` if given),
-    deserialized; the bag is open while the caller iterates."""
+    deserialized; the bag is open while the caller iterates (``progress``: a bar's label, on a terminal)."""
     with open_bag(path) as reader:
-        for conn, t_rec, raw in read_messages(reader, path, connections_for(reader, topic, msgtype=msgtype)):
+        conns = connections_for(reader, topic, msgtype=msgtype)
+        for conn, t_rec, raw in read_messages(reader, path, conns, progress=progress):
             yield conn, t_rec, deserialize(reader, raw, conn.msgtype, path)
 
 
-def read_orientations(path: str | Path, topic: str) -> tuple[np.ndarray, np.ndarray]:
-    """Header stamps ``(N,)`` s and orientations ``(N, 4)`` ``[w, x, y, z]`` of a topic.
+def read_orientations(path: str | Path, topic: str, progress: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Header stamps ``(N,)`` s and orientations ``(N, 4)`` ``[w, x, y, z]`` of a topic (``progress``: a bar's label).
 
     An Imu message that marks its orientation unknown (``orientation_covariance[0] == -1``, as a driver's raw
     output does) gives NaN; :class:`BagError` if every message of the topic does (it holds no orientation).
@@ -429,7 +451,7 @@ def read_orientations(path: str | Path, topic: str) -> tuple[np.ndarray, np.ndar
     t, q = [], []
     n_unknown = 0
     nan4 = (math.nan,) * 4
-    for conn, _, msg in read_topic(path, topic):
+    for conn, _, msg in read_topic(path, topic, progress=progress):
         if conn.msgtype.endswith('/Imu') and msg.orientation_covariance[0] == -1.0:
             n_unknown += 1
             q.append(nan4)

@@ -42,10 +42,11 @@ from .bagio import (
 from .plot import check_plot_path, save_figure
 
 
-def read_mag(bag: str | Path, topic: str = '/imu/mag') -> np.ndarray:
-    """All magnetic_field vectors (N, 3), T, of a sensor_msgs/MagneticField topic; :class:`BagError` if absent."""
+def read_mag(bag: str | Path, topic: str = '/imu/mag', progress: str | None = None) -> np.ndarray:
+    """All magnetic_field vectors (N, 3), T, of a sensor_msgs/MagneticField topic; :class:`BagError` if absent
+    (``progress``: a bar's label, on a terminal)."""
     out = [(m.magnetic_field.x, m.magnetic_field.y, m.magnetic_field.z)
-           for _, _, m in read_topic(bag, topic, 'sensor_msgs/msg/MagneticField')]
+           for _, _, m in read_topic(bag, topic, 'sensor_msgs/msg/MagneticField', progress=progress)]
     return np.array(out, dtype=float).reshape(-1, 3)
 
 
@@ -112,7 +113,7 @@ def _motion_axes(args: argparse.Namespace, raw: np.ndarray) -> tuple[str, Rotati
     axes: RotationAxes | None = None
     imu_topic = args.imu_topic or DEFAULT_IMU_TOPIC
     try:
-        imu = read_imu_arrays(args.bag, imu_topic, mag_topic=None)
+        imu = read_imu_arrays(args.bag, imu_topic, mag_topic=None, progress=imu_topic)
     except CcfError as err:
         if args.motion == 'planar':
             raise CalibrationError(f'--motion planar needs the gyro ({imu_topic}): {err}') from err
@@ -191,7 +192,7 @@ def cmd_calibrate_mag(args: argparse.Namespace) -> int:
         raise ParameterError(f'--field-norm-ut must be a positive number of uT, got {args.field_norm_ut!r}')
     if args.field_dip_deg is not None and not (math.isfinite(args.field_dip_deg) and abs(args.field_dip_deg) < 89.9):
         raise ParameterError(f'--field-dip-deg must be a number within (-90, 90) deg, got {args.field_dip_deg!r}')
-    raw = read_mag(args.bag, args.mag_topic)
+    raw = read_mag(args.bag, args.mag_topic, progress=args.mag_topic)
     motion, axes = ('3d', None) if args.motion == '3d' else _motion_axes(args, raw)
     cal = _planar(args, raw, axes) if motion == 'planar' else _fit_3d(args, raw)
     # Staged and renamed: a reader (or a crash) never sees half a file.

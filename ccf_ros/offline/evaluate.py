@@ -75,12 +75,14 @@ def load_aligned(
     reference_bag: str | Path | None = None,
     estimate_topic: str = '/imu/data',
     mask_topic: str | None = None,
+    progress: bool = False,
 ) -> Aligned:
-    """Read estimate, reference and optional mask and resample the estimate at the reference stamps."""
-    t_est, q_est = read_orientations(bag, estimate_topic)
+    """Read estimate, reference and optional mask and resample the estimate at the reference stamps (``progress``: a
+    bar per topic read, on a terminal)."""
+    t_est, q_est = read_orientations(bag, estimate_topic, progress=estimate_topic if progress else None)
     if len(t_est) == 0:
         raise BagError(f'{bag}: no messages on {estimate_topic}')
-    t_ref, q_ref = read_orientations(reference_bag or bag, reference)
+    t_ref, q_ref = read_orientations(reference_bag or bag, reference, progress=reference if progress else None)
     if len(t_ref) == 0:
         raise BagError(f'no messages on reference topic {reference}')
     mask = np.ones(len(t_ref), dtype=bool)
