@@ -102,10 +102,6 @@ def make_engine(merged: dict[str, Any], strict: bool) -> Any:
     return ImuEngine(filt, adapter)
 
 
-def _engine(args: argparse.Namespace) -> Any:
-    return make_engine(*engine_settings(args))
-
-
 def _writable(path: str | Path, what: str, overwrite: bool) -> Path:
     """``path`` if its directory exists and it does not (or is a file and ``overwrite``), checked before the slow
     part; :class:`CcfError` otherwise."""
@@ -125,14 +121,13 @@ def _need_rclpy(what: str) -> None:
         raise CcfError(f'{what} needs rclpy: install the ROS 2 Jazzy wheels (pip install -e .) or source ROS 2 Jazzy')
 
 
-def motion_hint(args: argparse.Namespace) -> tuple[str | None, tuple[float, float, float]]:
+def motion_hint(args: argparse.Namespace, merged: dict[str, Any]) -> tuple[str | None, tuple[float, float, float]]:
     """The motion hint's topic (None: none) and thresholds (speed m/s, turn rate rad/s, timeout s), as replay and
-    fleet read them."""
+    fleet read them, from :func:`engine_settings`' ``merged`` settings."""
     from .offline.params_file import resolve_topic
     from .settings import NODE_DEFAULTS, coerce
 
-    from_files, given = _settings(args)
-    st = {**NODE_DEFAULTS, **from_files, **given}
+    st = {**NODE_DEFAULTS, **merged}
     # The option (replay's) wins over the parameter (--param or a parameters file); a relative name is resolved as
     # the node named by --node-name resolves it.
     option = getattr(args, 'motion_hint_topic', None)
@@ -144,11 +139,13 @@ def motion_hint(args: argparse.Namespace) -> tuple[str | None, tuple[float, floa
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
+    from .offline.params_file import parse_assignments
     from .offline.replay import replay
     from .settings import names
 
-    engine = _engine(args)
-    hint_topic, hint = motion_hint(args)
+    merged, strict = engine_settings(args)
+    engine = make_engine(merged, strict)
+    hint_topic, hint = motion_hint(args, merged)
     summary = replay(
         args.bag,
         args.output,
@@ -164,7 +161,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         overwrite=args.overwrite,
     )
     hint_settings = {'motion_hint_topic', 'motion_hint_linear_m_s', 'motion_hint_angular_rad_s', 'motion_hint_timeout_s'}
-    node_only = sorted(set(_settings(args)[1]) & set(names('node')) - hint_settings)
+    node_only = sorted(set(parse_assignments(args.param or [])) & set(names('node')) - hint_settings)
     if node_only:
         summary.warnings.append(f'{", ".join(node_only)}: node settings, without effect on replay (it writes '
                                 '/imu/gyro_bias for every sample)')
@@ -428,7 +425,7 @@ def cmd_fleet_run(args: argparse.Namespace) -> int:
         # One file per IMU: bags of many robots (or of one, processed in parallel) would overwrite each other's.
         raise ParameterError(f'bias_file is one IMU\'s state, not a fleet\'s: remove it (got {merged["bias_file"]!r})')
     out = Path(args.output).absolute()
-    hint_topic, hint = motion_hint(args)
+    hint_topic, hint = motion_hint(args, merged)
     opts = FleetOptions(out=str(out), settings=merged, strict=strict, version=code_version(), imu_topic=args.imu_topic,
                         mag_topic=args.mag_topic, no_mag=args.no_mag, motion_hint_topic=hint_topic, motion_hint=hint,
                         write_bags=args.write_bags,
