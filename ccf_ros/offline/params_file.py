@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import re
 from collections.abc import Iterable
 from pathlib import Path
@@ -24,7 +25,7 @@ def load_params_file(path: str | Path, node_name: str | None = None) -> dict[str
         ParameterError: the file cannot be read, is not YAML, has no ``ros__parameters``, (several sections) none
             for the node, or text for a setting that is not text (``tau_acc_s: '2'``, refused by the node too).
     """
-    return _typed(_node_params(path, node_name))
+    return load_params_files([path], node_name)
 
 
 def load_params_files(paths: Iterable[str | Path], node_name: str | None = None) -> dict[str, Any]:
@@ -73,6 +74,7 @@ def _node_params(path: str | Path, node_name: str | None) -> dict[str, Any]:
 _EXPONENT_REAL = re.compile(r'^[-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)[eE][-+]?[0-9]+$')
 
 
+@functools.cache
 def _loader() -> type:
     """PyYAML's safe loader, reading reals as rcl does (:data:`_EXPONENT_REAL`)."""
     import yaml
