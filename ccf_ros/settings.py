@@ -431,6 +431,9 @@ def _defaults_of(cls: type[Any]) -> dict[str, Any]:
 #: Defaults of the engine's, the node's settings and of the accepted imu_tools gains (read-only views).
 ENGINE_DEFAULTS: dict[str, Any] = _defaults_of(EngineSettings)
 NODE_DEFAULTS: dict[str, Any] = _defaults_of(NodeSettings)
+#: The motion hint's thresholds by default (speed m/s, turn rate rad/s, timeout s), as replay and fleet take them.
+MOTION_HINT_DEFAULT: tuple[float, float, float] = (
+    NODE_DEFAULTS['motion_hint_linear_m_s'], NODE_DEFAULTS['motion_hint_angular_rad_s'], NODE_DEFAULTS['motion_hint_timeout_s'])
 #: imu_tools gain -> (its imu_tools default, the ccf parameter that plays its role).
 IMU_TOOLS_GAINS: dict[str, tuple[Any, str]] = {
     f.name: (f.default, f.metadata['description']) for f in dataclasses.fields(ImuToolsGains)}

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from ..settings import MOTION_HINT_DEFAULT
 from .health import HealthAccumulator, judge
 
 __all__ = ['BagTimeout', 'FleetOptions', 'VersionMismatch', 'filter_metrics', 'process_bag', 'result_path', 'write_first']
@@ -49,7 +50,7 @@ class FleetOptions:
     mag_topic: str | None = None
     no_mag: bool = False
     motion_hint_topic: str | None = None  # resolved; None: none
-    motion_hint: tuple[float, float, float] = (0.01, 0.01, 0.5)  # (speed m/s, turn rate rad/s, timeout s)
+    motion_hint: tuple[float, float, float] = MOTION_HINT_DEFAULT  # (speed m/s, turn rate rad/s, timeout s)
     write_bags: bool = False
     reference: str = '/ground_truth/pose'
     mask_topic: str = '/ground_truth/moving'

@@ -29,6 +29,7 @@ from ..messages.cdr import ANGULAR_VELOCITY, LINEAR_ACCELERATION, LITTLE_ENDIAN_
 from ..messages.convert import stamp_s
 from ..messages.paths import FastCdrPath, MessagePath
 from ..messages.paths import Path as MessageWay
+from ..settings import MOTION_HINT_DEFAULT
 from .bagio import (
     BagError,
     BagWriter,
@@ -143,7 +144,7 @@ def replay(
     overwrite: bool = False,
     progress: bool | None = None,
     motion_hint_topic: str | None = None,
-    motion_hint: tuple[float, float, float] = (0.01, 0.01, 0.5),
+    motion_hint: tuple[float, float, float] = MOTION_HINT_DEFAULT,
     health: HealthSink | None = None,
 ) -> ReplaySummary:
     """Replay ``bag_in`` through ``engine`` into a new rosbag2 ``bag_out``.
@@ -403,7 +404,7 @@ class _Replayer:
 
     def __init__(
         self, reader: AnyReader, writer: BagWriter, engine: ImuEngine, bag: str | Path, topics: Topics,
-        copy_input: bool, motion_hint: tuple[float, float, float] = (0.01, 0.01, 0.5),
+        copy_input: bool, motion_hint: tuple[float, float, float] = MOTION_HINT_DEFAULT,
         health: HealthSink | None = None,
     ) -> None:
         imu_conns = connections_for(reader, topics.imu, msgtype=IMU)
