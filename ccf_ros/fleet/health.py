@@ -65,13 +65,12 @@ REST_ACC_STD_M_S2 = 0.2
 #: asks the same of its low-passed gyro). A steady turn faster than that (a robot spinning in place) is no rest.
 REST_BIAS_MAX_RAD_S = CcfParams().bias_max_rad_s
 #: Rest windows this long in all at least, s, before the offset and the accelerometer norm are read from them: a
-#: single window of gentle hand motion at a near-constant rate passes as rest (one read 15 °/s of "offset").
+#: single window of gentle hand motion at a near-constant rate passes as rest (one read 15 °/s of "offset"). A bag
+#: without that much rest, but whose windows as steady as at rest read on average a rate beyond the clamp (on one
+#: axis) for as long: a gyro offset beyond it (a still IMU), or a turn in one direction at a steady rate; without a
+#: rest the two look alike, and either is flagged ``gyro_bias_high`` (the filter cannot learn such an offset). Turns
+#: back and forth average out.
 REST_MIN_S = 2.0
-#: A bag without that much rest, but whose windows as steady as at rest read on average a rate beyond the clamp (on
-#: one axis) for as long: a gyro offset beyond it (a still IMU), or a turn in one direction at a steady rate; without
-#: a rest the two look alike, and either is flagged ``gyro_bias_high`` (the filter cannot learn such an offset).
-#: Turns back and forth average out.
-STEADY_BEYOND_CLAMP_MIN_S = REST_MIN_S
 #: Rest windows, s; vibration windows, s (the window mean removed: a high-pass at about 1/window = 5 Hz, the band
 #: ArduPilot's VIBE and PX4 look at).
 REST_WINDOW_S = 0.5
@@ -408,7 +407,7 @@ def judge(metrics: dict[str, float], th: Thresholds | None = None) -> tuple[str,
         warn, fail = getattr(th, attr)
         if v > warn:
             level[flag] = 2 if v > fail else 1
-    if (metrics.get('rest_s', 0.0) < REST_MIN_S and metrics.get('steady_beyond_clamp_s', 0.0) >= STEADY_BEYOND_CLAMP_MIN_S
+    if (metrics.get('rest_s', 0.0) < REST_MIN_S and metrics.get('steady_beyond_clamp_s', 0.0) >= REST_MIN_S
             and metrics.get('steady_beyond_clamp_rad_s', 0.0) > REST_BIAS_MAX_RAD_S):
         # No rest to measure the offset at, and the gyro reads a steady rate the filter's clamp cannot hold.
         level['gyro_bias_high'] = 2
