@@ -187,11 +187,11 @@ def test_complementary_filter_config_yaml_declared_and_its_qos_override_applied(
         # The complementary filter's output rate is bias-corrected (do_bias_estimation true).
         assert node.engine.settings.bias_corrected_rate
         # `ccf replay --profile complementary_filter_node --params-file filter_config.yaml` runs the same engine.
-        from ccf_ros.cli import _engine, build_parser
+        from ccf_ros.cli import build_parser, engine_settings, make_engine
 
         args = build_parser().parse_args(['replay', 'in', '-o', 'out', '--profile', 'complementary_filter_node',
                                            '--params-file', str(COMPLEMENTARY_YAML)])
-        offline = _replay_reference(imu_only, engine=_engine(args))
+        offline = _replay_reference(imu_only, engine=make_engine(*engine_settings(args)))
         np.testing.assert_array_equal(_xyzw(h.out), _ref_xyzw(offline))
         rates = np.array([(m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z) for m in h.out])
         np.testing.assert_array_equal(rates, [o.angular_velocity for o in offline])
